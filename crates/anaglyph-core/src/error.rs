@@ -1,0 +1,87 @@
+//! The one error type of the core library. Every message carries the value that was
+//! found and the value that was expected, so that a user can fix the input without
+//! reading the code.
+
+use std::path::PathBuf;
+
+/// Errors of the spectral core.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+
+    #[error("{context}: line {line}: {message}")]
+    Parse {
+        context: String,
+        line: usize,
+        message: String,
+    },
+
+    #[error("{context}: {message}")]
+    Invalid { context: String, message: String },
+
+    #[error(
+        "curve '{name}' covers {have_start} to {have_end} nm but {need_start} to {need_end} nm is needed"
+    )]
+    CurveNotCovering {
+        name: String,
+        have_start: f64,
+        have_end: f64,
+        need_start: f64,
+        need_end: f64,
+    },
+
+    #[error("shape mismatch in {op}: got {got:?}, expected {expected:?}")]
+    Shape {
+        op: String,
+        got: Vec<usize>,
+        expected: Vec<usize>,
+    },
+
+    #[error("{op}: {what} is {size} (limit {limit})")]
+    TooLarge {
+        op: String,
+        what: String,
+        size: u64,
+        limit: u64,
+    },
+
+    #[error(
+        "the regularised normal matrix C^T C + lambda D^T D is singular (lambda = {lambda}, \
+         {rows} measurement rows, {cols} unknowns); use lambda > 0 or more measurements"
+    )]
+    SingularNormalMatrix {
+        lambda: f64,
+        rows: usize,
+        cols: usize,
+    },
+
+    #[error("linear algebra failure in {op}: {message}")]
+    LinearAlgebra { op: String, message: String },
+
+    #[error("{op} did not converge in {iterations} iterations")]
+    NoConvergence { op: String, iterations: usize },
+}
+
+/// Result alias of the core library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub(crate) fn invalid(context: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Invalid {
+            context: context.into(),
+            message: message.into(),
+        }
+    }
+
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+}

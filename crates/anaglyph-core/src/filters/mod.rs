@@ -1,0 +1,14 @@
+//! Wide-band colour filters: the modelled gel library that stands in for the paper's
+//! ~18 plastic filters, calibration of a filter from spectrometer readings with and
+//! without it (section 3.2, Eq. 7), and the choice of the subset that makes the
+//! sensing matrix best conditioned or least noisy (section 3.2, "Filter selection").
+
+mod calibration;
+mod gel_model;
+mod selection;
+
+pub use calibration::{calibrate_filter, FilterCalibration};
+pub use gel_model::{gel_library, GelFilter, GelShape, GEL_LIBRARY_SHAPE};
+pub use selection::{
+    select_filters, NoiseModel, SelectionCriterion, SelectionOptions, SelectionReport, SubsetScore,
+};

@@ -1,0 +1,174 @@
+//! Linear captures as pictures: 8- or 16-bit PNG/TIFF, grey or RGB(A), read as values in
+//! [0, 1] without any gamma curve (the files hold linear sensor values), and written as
+//! 16-bit PNG. The `image` crate decodes; we only check sizes and lay out the channels.
+
+use super::{write_atomically, MAX_RASTER_VALUES};
+use crate::{Error, Result};
+use std::path::Path;
+
+/// An interleaved linear raster with values in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearImage {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    /// Bits per sample of the source file (8 or 16), for saturation checks.
+    pub bit_depth: u8,
+    pub data: Vec<f32>,
+}
+
+/// Reads a PNG or TIFF as linear values in [0, 1]; alpha is dropped.
+pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| Error::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?;
+    let mut reader = reader;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_RASTER_VALUES * 2);
+    reader.limits(limits);
+    let decoded = reader
+        .decode()
+        .map_err(|e| Error::invalid(path.display().to_string(), e.to_string()))?;
+    use image::DynamicImage as D;
+    let (width, height) = (decoded.width() as usize, decoded.height() as usize);
+    let (channels, bit_depth, data): (usize, u8, Vec<f32>) = match decoded {
+        D::ImageLuma8(i) => (
+            1,
+            8,
+            i.into_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        ),
+        D::ImageLuma16(i) => (
+            1,
+            16,
+            i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        ),
+        D::ImageLumaA8(i) => (
+            1,
+            8,
+            i.into_raw()
+                .chunks_exact(2)
+                .map(|p| p[0] as f32 / 255.0)
+                .collect(),
+        ),
+        D::ImageLumaA16(i) => (
+            1,
+            16,
+            i.into_raw()
+                .chunks_exact(2)
+                .map(|p| p[0] as f32 / 65535.0)
+                .collect(),
+        ),
+        D::ImageRgb8(i) => (
+            3,
+            8,
+            i.into_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        ),
+        D::ImageRgb16(i) => (
+            3,
+            16,
+            i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        ),
+        D::ImageRgba8(i) => (
+            3,
+            8,
+            i.into_raw()
+                .chunks_exact(4)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .map(|v| v as f32 / 255.0)
+                .collect(),
+        ),
+        D::ImageRgba16(i) => (
+            3,
+            16,
+            i.into_raw()
+                .chunks_exact(4)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .map(|v| v as f32 / 65535.0)
+                .collect(),
+        ),
+        other => {
+            return Err(Error::invalid(
+                path.display().to_string(),
+                format!(
+                    "pixel type {:?} (expected 8/16-bit grey or RGB)",
+                    other.color()
+                ),
+            ))
+        }
+    };
+    Ok(LinearImage {
+        width,
+        height,
+        channels,
+        bit_depth,
+        data,
+    })
+}
+
+/// Writes a 16-bit grey or RGB PNG from values in [0, 1] (clipped, rounded).
+pub fn write_png16(path: &Path, image: &LinearImage) -> Result<()> {
+    let color = match image.channels {
+        1 => image::ExtendedColorType::L16,
+        3 => image::ExtendedColorType::Rgb16,
+        c => {
+            return Err(Error::invalid(
+                "write_png16",
+                format!("{c} channels (expected 1 or 3)"),
+            ))
+        }
+    };
+    if image.data.len() != image.width * image.height * image.channels {
+        return Err(Error::Shape {
+            op: "write_png16".into(),
+            got: vec![image.data.len()],
+            expected: vec![image.width * image.height * image.channels],
+        });
+    }
+    let bytes: Vec<u8> = image
+        .data
+        .iter()
+        .flat_map(|&v| ((v.clamp(0.0, 1.0) * 65535.0).round() as u16).to_ne_bytes())
+        .collect();
+    write_atomically(path, |w| {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(w)
+            .write_image(&bytes, image.width as u32, image.height as u32, color)
+            .map_err(std::io::Error::other)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sixteen_bit_png_round_trip_is_linear() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.png");
+        let img = LinearImage {
+            width: 2,
+            height: 1,
+            channels: 3,
+            bit_depth: 16,
+            data: vec![0.0, 0.5, 1.0, 0.25, 1.0 / 65535.0, 0.75],
+        };
+        write_png16(&path, &img).unwrap();
+        let back = read_linear_image(&path).unwrap();
+        assert_eq!(
+            (back.width, back.height, back.channels, back.bit_depth),
+            (2, 1, 3, 16)
+        );
+        for (a, b) in back.data.iter().zip(&img.data) {
+            assert!((a - b).abs() <= 0.5 / 65535.0, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn garbage_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        std::fs::write(&path, b"not a png").unwrap();
+        assert!(read_linear_image(&path).is_err());
+    }
+}

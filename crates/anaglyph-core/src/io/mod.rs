@@ -1,0 +1,20 @@
+//! File formats at the edges of the pipeline: ENVI spectral cubes (.hdr + raw), NumPy
+//! `.npy` arrays, PFM disparity maps, 8/16-bit PNG/TIFF captures. Every writer goes
+//! through [`write_atomically`] (temporary file in the target folder, then rename), so a
+//! failed run never leaves a half-written output; every reader checks sizes against
+//! limits before it allocates.
+
+mod atomic;
+mod envi;
+mod linear_image;
+mod npy;
+mod pfm;
+
+pub use atomic::write_atomically;
+pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
+pub use linear_image::{read_linear_image, write_png16, LinearImage};
+pub use npy::{read_npy_bool, read_npy_f64, write_npy_f32, write_npy_f64, NpyArray};
+pub use pfm::{read_pfm, write_pfm, PfmImage};
+
+/// Largest raster (pixels × channels) any reader allocates: 2^31 values (8 GiB of f32).
+pub const MAX_RASTER_VALUES: u64 = 1 << 31;

@@ -1,0 +1,193 @@
+//! NumPy `.npy` arrays through `ndarray-npy`: float arrays of any rank are read as f64
+//! (from `<f4` or `<f8`), boolean masks as bool; arrays are written as f32 or f64. Before
+//! anything is allocated, the header's shape is checked against the file size.
+
+use super::{write_atomically, MAX_RASTER_VALUES};
+use crate::{Error, Result};
+use ndarray::{ArrayD, IxDyn};
+use ndarray_npy::{ReadNpyExt, WriteNpyExt};
+use std::path::Path;
+
+/// A dense array in row-major (C) order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NpyArray<T> {
+    pub shape: Vec<usize>,
+    pub data: Vec<T>,
+}
+
+/// Shape and item size declared by an `.npy` header, checked against the file length.
+fn check_header(path: &Path) -> Result<()> {
+    use std::io::Read;
+    let bad = |message: String| Error::Parse {
+        context: path.display().to_string(),
+        line: 0,
+        message,
+    };
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut head = vec![0u8; 12.min(file_len as usize)];
+    file.read_exact(&mut head).map_err(|e| Error::io(path, e))?;
+    if head.len() < 10 || &head[..6] != b"\x93NUMPY" {
+        return Err(bad("not an .npy file (bad magic)".into()));
+    }
+    let (header_len, prefix) = match head[6] {
+        1 => (u16::from_le_bytes([head[8], head[9]]) as u64, 10u64),
+        2 | 3 if head.len() == 12 => (
+            u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as u64,
+            12,
+        ),
+        v => return Err(bad(format!("unsupported .npy version {v}"))),
+    };
+    if header_len > 1 << 20 || prefix + header_len > file_len {
+        return Err(bad(format!(
+            "header length {header_len} does not fit the file"
+        )));
+    }
+    let mut header = vec![0u8; header_len as usize];
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    std::io::copy(&mut (&mut file).take(prefix), &mut std::io::sink())
+        .map_err(|e| Error::io(path, e))?;
+    file.read_exact(&mut header)
+        .map_err(|e| Error::io(path, e))?;
+    let header = String::from_utf8_lossy(&header);
+    let item = if header.contains("f8") || header.contains("i8") || header.contains("u8") {
+        8
+    } else if header.contains("f4") || header.contains("i4") || header.contains("u4") {
+        4
+    } else if header.contains("f2") || header.contains("i2") || header.contains("u2") {
+        2
+    } else {
+        1
+    };
+    let shape_text = header
+        .split("'shape':")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .ok_or_else(|| bad("header has no shape".into()))?;
+    let mut values: u64 = 1;
+    for dim in shape_text
+        .trim()
+        .trim_start_matches('(')
+        .split(',')
+        .map(str::trim)
+    {
+        if dim.is_empty() {
+            continue;
+        }
+        let d: u64 = dim
+            .parse()
+            .map_err(|_| bad(format!("shape entry '{dim}' is not an integer")))?;
+        values = values.saturating_mul(d);
+    }
+    if values > MAX_RASTER_VALUES {
+        return Err(Error::TooLarge {
+            op: format!("reading {}", path.display()),
+            what: "array elements".into(),
+            size: values,
+            limit: MAX_RASTER_VALUES,
+        });
+    }
+    let need = prefix + header_len + values * item;
+    if file_len != need {
+        return Err(bad(format!("{file_len} bytes (header declares {need})")));
+    }
+    Ok(())
+}
+
+fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
+    Error::Parse {
+        context: path.display().to_string(),
+        line: 0,
+        message: e.to_string(),
+    }
+}
+
+fn into_row_major<T: Clone>(array: ArrayD<T>) -> NpyArray<T> {
+    let shape = array.shape().to_vec();
+    let data = array.as_standard_layout().iter().cloned().collect();
+    NpyArray { shape, data }
+}
+
+/// Reads a float array (`f4` or `f8`, either byte order, C or Fortran order) as f64.
+pub fn read_npy_f64(path: &Path) -> Result<NpyArray<f64>> {
+    check_header(path)?;
+    let open = || std::fs::File::open(path).map_err(|e| Error::io(path, e));
+    match ArrayD::<f64>::read_npy(open()?) {
+        Ok(a) => Ok(into_row_major(a)),
+        Err(ndarray_npy::ReadNpyError::WrongDescriptor(_)) => {
+            let a = ArrayD::<f32>::read_npy(open()?).map_err(|e| read_error(path, e))?;
+            Ok(into_row_major(a.mapv(f64::from)))
+        }
+        Err(e) => Err(read_error(path, e)),
+    }
+}
+
+/// Reads a boolean array.
+pub fn read_npy_bool(path: &Path) -> Result<NpyArray<bool>> {
+    check_header(path)?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let a = ArrayD::<bool>::read_npy(file).map_err(|e| read_error(path, e))?;
+    Ok(into_row_major(a))
+}
+
+fn write_array<T: ndarray_npy::WritableElement + Clone>(
+    path: &Path,
+    shape: &[usize],
+    data: Vec<T>,
+) -> Result<()> {
+    let array = ArrayD::from_shape_vec(IxDyn(shape), data)
+        .map_err(|e| Error::invalid("write_npy", e.to_string()))?;
+    write_atomically(path, |w| array.write_npy(w).map_err(std::io::Error::other))
+}
+
+/// Writes a row-major f32 array.
+pub fn write_npy_f32(path: &Path, shape: &[usize], data: Vec<f32>) -> Result<()> {
+    write_array(path, shape, data)
+}
+
+/// Writes a row-major f64 array.
+pub fn write_npy_f64(path: &Path, shape: &[usize], data: Vec<f64>) -> Result<()> {
+    write_array(path, shape, data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f32_and_f64_round_trip_and_bool_masks() {
+        let dir = tempfile::tempdir().unwrap();
+        let p32 = dir.path().join("a.npy");
+        write_npy_f32(&p32, &[2, 3], vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5]).unwrap();
+        let a = read_npy_f64(&p32).unwrap();
+        assert_eq!(a.shape, vec![2, 3]);
+        assert_eq!(a.data[5], 6.5);
+        let p64 = dir.path().join("b.npy");
+        write_npy_f64(&p64, &[3], vec![0.1, 0.2, 0.3]).unwrap();
+        assert_eq!(read_npy_f64(&p64).unwrap().data, vec![0.1, 0.2, 0.3]);
+
+        let pb = dir.path().join("m.npy");
+        let mask = ArrayD::from_shape_vec(IxDyn(&[2]), vec![true, false]).unwrap();
+        ndarray_npy::write_npy(&pb, &mask).unwrap();
+        assert_eq!(read_npy_bool(&pb).unwrap().data, vec![true, false]);
+    }
+
+    #[test]
+    fn truncated_or_lying_headers_are_rejected_before_allocation() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        write_npy_f32(&p, &[4], vec![1.0; 4]).unwrap();
+        let mut bytes = std::fs::read(&p).unwrap();
+        bytes.truncate(bytes.len() - 4);
+        std::fs::write(&p, &bytes).unwrap();
+        assert!(read_npy_f64(&p)
+            .unwrap_err()
+            .to_string()
+            .contains("header declares"));
+        let text = String::from_utf8_lossy(&bytes).replace("(4,)", "(9999999999999,)");
+        std::fs::write(&p, text.as_bytes()).unwrap();
+        assert!(read_npy_f64(&p).is_err());
+        std::fs::write(&p, b"hello").unwrap();
+        assert!(read_npy_f64(&p).unwrap_err().to_string().contains("magic"));
+    }
+}

@@ -1,0 +1,99 @@
+//! Structural similarity (Wang, Bovik, Sheikh & Simoncelli 2004) with the paper's
+//! settings: 11×11 Gaussian window, σ = 1.5, K1 = 0.01, K2 = 0.03, dynamic range L.
+//! The mean is taken over window positions fully inside the image (scikit-image's
+//! `gaussian_weights=True, use_sample_covariance=False` crops the same border).
+
+/// Window side.
+pub const SSIM_WINDOW: usize = 11;
+/// Gaussian σ of the window.
+pub const SSIM_SIGMA: f64 = 1.5;
+pub const SSIM_K1: f64 = 0.01;
+pub const SSIM_K2: f64 = 0.03;
+
+fn gaussian_kernel() -> [f64; SSIM_WINDOW] {
+    let mut k = [0.0; SSIM_WINDOW];
+    let r = (SSIM_WINDOW / 2) as f64;
+    for (i, v) in k.iter_mut().enumerate() {
+        let x = i as f64 - r;
+        *v = (-x * x / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp();
+    }
+    let sum: f64 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= sum);
+    k
+}
+
+/// Separable "valid" Gaussian filtering of a `width × height` plane.
+fn filter_valid(plane: &[f64], width: usize, height: usize, k: &[f64; SSIM_WINDOW]) -> Vec<f64> {
+    let ow = width - SSIM_WINDOW + 1;
+    let oh = height - SSIM_WINDOW + 1;
+    let mut rows = vec![0.0; ow * height];
+    for y in 0..height {
+        for x in 0..ow {
+            rows[y * ow + x] = (0..SSIM_WINDOW)
+                .map(|i| k[i] * plane[y * width + x + i])
+                .sum();
+        }
+    }
+    let mut out = vec![0.0; ow * oh];
+    for y in 0..oh {
+        for x in 0..ow {
+            out[y * ow + x] = (0..SSIM_WINDOW)
+                .map(|i| k[i] * rows[(y + i) * ow + x])
+                .sum();
+        }
+    }
+    out
+}
+
+/// Mean SSIM of two planes with dynamic range `range`; NaN if smaller than the window.
+pub fn ssim(a: &[f64], b: &[f64], width: usize, height: usize, range: f64) -> f64 {
+    if width < SSIM_WINDOW
+        || height < SSIM_WINDOW
+        || a.len() != width * height
+        || b.len() != a.len()
+    {
+        return f64::NAN;
+    }
+    let k = gaussian_kernel();
+    let prod = |f: &dyn Fn(f64, f64) -> f64| -> Vec<f64> {
+        a.iter().zip(b).map(|(&x, &y)| f(x, y)).collect()
+    };
+    let mu_a = filter_valid(a, width, height, &k);
+    let mu_b = filter_valid(b, width, height, &k);
+    let aa = filter_valid(&prod(&|x, _| x * x), width, height, &k);
+    let bb = filter_valid(&prod(&|_, y| y * y), width, height, &k);
+    let ab = filter_valid(&prod(&|x, y| x * y), width, height, &k);
+    let c1 = (SSIM_K1 * range).powi(2);
+    let c2 = (SSIM_K2 * range).powi(2);
+    let total: f64 = (0..mu_a.len())
+        .map(|i| {
+            let (ma, mb) = (mu_a[i], mu_b[i]);
+            let va = aa[i] - ma * ma;
+            let vb = bb[i] - mb * mb;
+            let cov = ab[i] - ma * mb;
+            ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
+        })
+        .sum();
+    total / mu_a.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identical_planes_score_one_and_constant_offsets_follow_the_closed_form() {
+        let (w, h) = (16, 13);
+        let a: Vec<f64> = (0..w * h)
+            .map(|i| ((i * 37) % 101) as f64 / 100.0)
+            .collect();
+        assert!((ssim(&a, &a, w, h, 1.0) - 1.0).abs() < 1e-12);
+        // Two constant planes x and y: SSIM = (2xy + C1) / (x² + y² + C1) exactly.
+        let x = vec![0.2; w * h];
+        let y = vec![0.6; w * h];
+        let c1 = 1e-4;
+        let want = (2.0 * 0.2 * 0.6 + c1) / (0.04 + 0.36 + c1);
+        assert!((ssim(&x, &y, w, h, 1.0) - want).abs() < 1e-12);
+        assert!(ssim(&a, &a, 5, 5, 1.0).is_nan());
+    }
+}

@@ -1,0 +1,440 @@
+//! The rig file: a TOML description of the array that users write by hand or with
+//! `anaglyph rig init`. Curves are named `builtin:<name>` or by a CSV path relative to
+//! the rig file. Loading resolves every curve and validates the whole rig (grid complete
+//! and without duplicates, positive geometry, curves covering the sensor support).
+
+use super::OutOfBand;
+use crate::spectrum::{Interpolation, ResponseCurve, SpectralShape};
+use crate::{builtin, io::write_atomically, Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Prefix of curve references that name compiled-in data.
+pub const BUILTIN_PREFIX: &str = "builtin:";
+/// Largest number of rows or columns of an array.
+pub const MAX_RIG_SIDE: usize = 64;
+/// Largest rig file read.
+const MAX_RIG_FILE_BYTES: u64 = 1 << 20;
+
+/// Distance between neighbouring camera centres, mm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Baseline {
+    pub horizontal: f64,
+    pub vertical: f64,
+}
+
+/// The spectral grid and solver settings of the reconstruction.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructionSettings {
+    /// First band centre, nm.
+    pub start_nm: f64,
+    /// Band spacing, nm.
+    pub step_nm: f64,
+    /// Number of bands (the paper: N = 3M = 24).
+    pub count: usize,
+    /// How light outside the bands is modelled.
+    #[serde(default)]
+    pub out_of_band: OutOfBand,
+    /// Smoothness weight λ of Eq. 6 (the paper: 0.01).
+    #[serde(default = "default_lambda")]
+    pub lambda: f64,
+}
+
+fn default_lambda() -> f64 {
+    0.01
+}
+
+impl Default for ReconstructionSettings {
+    fn default() -> Self {
+        ReconstructionSettings {
+            start_nm: 450.0,
+            step_nm: 8.0,
+            count: 24,
+            out_of_band: OutOfBand::Extend,
+            lambda: default_lambda(),
+        }
+    }
+}
+
+/// One camera of the array as written in the file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraEntry {
+    pub row: usize,
+    pub col: usize,
+    /// Filter transmission curve reference.
+    pub filter: String,
+    /// Sensor override for this camera (default: the rig's sensor).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<String>,
+    /// Linear capture of the scene.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<PathBuf>,
+    /// Linear capture of a white board (illumination and gain calibration).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub white: Option<PathBuf>,
+}
+
+/// The TOML document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigFile {
+    pub name: String,
+    pub rows: usize,
+    pub cols: usize,
+    pub baseline_mm: Baseline,
+    pub focal_length_px: f64,
+    /// Sensor curve reference (1 channel: monochrome; 3: RGB).
+    pub sensor: String,
+    /// How sensor curves are resampled (the paper: cubic spline).
+    #[serde(default = "default_sensor_interpolation")]
+    pub sensor_interpolation: Interpolation,
+    /// Illuminant folded into C (reflectance out); without it C maps radiance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub illuminant: Option<String>,
+    #[serde(default)]
+    pub reconstruction: ReconstructionSettings,
+    #[serde(rename = "camera")]
+    pub cameras: Vec<CameraEntry>,
+}
+
+fn default_sensor_interpolation() -> Interpolation {
+    Interpolation::CubicSpline
+}
+
+/// A camera with its curves resolved.
+#[derive(Debug, Clone)]
+pub struct Camera {
+    pub row: usize,
+    pub col: usize,
+    pub filter: ResponseCurve,
+    pub sensor: ResponseCurve,
+    pub image: Option<PathBuf>,
+    pub white: Option<PathBuf>,
+}
+
+/// A loaded, validated rig: cameras in row-major order.
+#[derive(Debug, Clone)]
+pub struct Rig {
+    pub file: RigFile,
+    /// Folder relative paths are resolved against.
+    pub base_dir: PathBuf,
+    pub cameras: Vec<Camera>,
+    pub illuminant: Option<ResponseCurve>,
+}
+
+/// Loads a curve reference: `builtin:<name>` or a CSV path relative to `base`.
+pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
+    match reference.strip_prefix(BUILTIN_PREFIX) {
+        Some(name) => builtin::any(name),
+        None => {
+            let path = Path::new(reference);
+            let path = if path.is_absolute() {
+                path.to_path_buf()
+            } else {
+                base.join(path)
+            };
+            ResponseCurve::load_csv(&path)
+        }
+    }
+}
+
+impl RigFile {
+    /// Parses TOML text.
+    pub fn from_toml_str(text: &str, context: &str) -> Result<Self> {
+        toml::from_str(text).map_err(|e| Error::Parse {
+            context: context.into(),
+            line: e.span().map_or(0, |s| {
+                text[..s.start.min(text.len())].lines().count().max(1)
+            }),
+            message: e.message().to_string(),
+        })
+    }
+
+    /// TOML text with a comment header.
+    pub fn to_toml_string(&self) -> Result<String> {
+        let body =
+            toml::to_string_pretty(self).map_err(|e| Error::invalid("rig file", e.to_string()))?;
+        Ok(format!(
+            "# anaglyph rig file: geometry, curves and reconstruction grid of a filtered camera array.\n\
+             # Curves are 'builtin:<name>' or CSV paths (wavelength_nm,...) relative to this file.\n{body}"
+        ))
+    }
+
+    /// Writes the file atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let text = self.to_toml_string()?;
+        write_atomically(path, |w| w.write_all(text.as_bytes()))
+    }
+
+    fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::invalid(format!("rig '{}'", self.name), m));
+        if self.rows == 0 || self.cols == 0 || self.rows > MAX_RIG_SIDE || self.cols > MAX_RIG_SIDE
+        {
+            return bad(format!(
+                "{} x {} cameras (expected 1 to {MAX_RIG_SIDE} per side)",
+                self.rows, self.cols
+            ));
+        }
+        let b = self.baseline_mm;
+        if !(b.horizontal.is_finite()
+            && b.vertical.is_finite()
+            && b.horizontal > 0.0
+            && b.vertical > 0.0)
+        {
+            return bad(format!(
+                "baseline {} x {} mm (expected positive)",
+                b.horizontal, b.vertical
+            ));
+        }
+        if !(self.focal_length_px.is_finite() && self.focal_length_px > 0.0) {
+            return bad(format!(
+                "focal length {} px (expected positive)",
+                self.focal_length_px
+            ));
+        }
+        let lambda = self.reconstruction.lambda;
+        if !(lambda.is_finite() && lambda >= 0.0) {
+            return bad(format!("lambda {lambda} (expected finite and >= 0)"));
+        }
+        let mut seen = vec![false; self.rows * self.cols];
+        for cam in &self.cameras {
+            if cam.row >= self.rows || cam.col >= self.cols {
+                return bad(format!(
+                    "camera at row {} col {} lies outside the {} x {} grid",
+                    cam.row, cam.col, self.rows, self.cols
+                ));
+            }
+            let i = cam.row * self.cols + cam.col;
+            if seen[i] {
+                return bad(format!("two cameras at row {} col {}", cam.row, cam.col));
+            }
+            seen[i] = true;
+        }
+        if let Some(i) = seen.iter().position(|s| !s) {
+            return bad(format!(
+                "no camera at row {} col {}",
+                i / self.cols,
+                i % self.cols
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Rig {
+    /// Reads and validates a rig file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let size = std::fs::metadata(path)
+            .map_err(|e| Error::io(path, e))?
+            .len();
+        if size > MAX_RIG_FILE_BYTES {
+            return Err(Error::TooLarge {
+                op: format!("reading {}", path.display()),
+                what: "rig file size".into(),
+                size,
+                limit: MAX_RIG_FILE_BYTES,
+            });
+        }
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let file = RigFile::from_toml_str(&text, &path.display().to_string())?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Self::from_file(file, base)
+    }
+
+    /// Resolves and validates an in-memory rig file.
+    pub fn from_file(file: RigFile, base_dir: PathBuf) -> Result<Self> {
+        file.validate()?;
+        let rig_sensor = resolve_curve(&file.sensor, &base_dir)?;
+        let illuminant = file
+            .illuminant
+            .as_deref()
+            .map(|r| resolve_curve(r, &base_dir))
+            .transpose()?;
+        let mut entries = file.cameras.clone();
+        entries.sort_by_key(|c| (c.row, c.col));
+        let mut cameras = Vec::with_capacity(entries.len());
+        for e in entries {
+            let sensor = match &e.sensor {
+                Some(r) => resolve_curve(r, &base_dir)?,
+                None => rig_sensor.clone(),
+            };
+            if !(sensor.channel_count() == 1 || sensor.channel_count() == 3) {
+                return Err(Error::invalid(
+                    format!("sensor '{}'", sensor.name()),
+                    format!(
+                        "{} channels (expected 1 for monochrome or 3 for RGB)",
+                        sensor.channel_count()
+                    ),
+                ));
+            }
+            let filter = resolve_curve(&e.filter, &base_dir)?;
+            if filter.channel_count() != 1 {
+                return Err(Error::invalid(
+                    format!("filter '{}'", filter.name()),
+                    format!(
+                        "{} channels (expected 1 transmission column)",
+                        filter.channel_count()
+                    ),
+                ));
+            }
+            let (lo, hi) = sensor.domain();
+            filter.check_covers(lo, hi)?;
+            if let Some(light) = &illuminant {
+                light.check_covers(lo, hi)?;
+            }
+            let resolve_path = |p: &Option<PathBuf>| {
+                p.as_ref().map(|p| {
+                    if p.is_absolute() {
+                        p.clone()
+                    } else {
+                        base_dir.join(p)
+                    }
+                })
+            };
+            cameras.push(Camera {
+                row: e.row,
+                col: e.col,
+                image: resolve_path(&e.image),
+                white: resolve_path(&e.white),
+                filter,
+                sensor,
+            });
+        }
+        let rig = Rig {
+            file,
+            base_dir,
+            cameras,
+            illuminant,
+        };
+        rig.reconstruction_shape()?;
+        Ok(rig)
+    }
+
+    /// The reconstruction bands.
+    pub fn reconstruction_shape(&self) -> Result<SpectralShape> {
+        let r = &self.file.reconstruction;
+        SpectralShape::new(r.start_nm, r.step_nm, r.count)
+    }
+
+    /// Total number of camera channels (rows of C).
+    pub fn channel_count(&self) -> usize {
+        self.cameras.iter().map(|c| c.sensor.channel_count()).sum()
+    }
+
+    /// The paper's 2×4 rig (30 mm × 50 mm baselines, a Canon 5D Mark II sensor under CIE A,
+    /// the tungsten-like light of the paper's real captures) with the given filters.
+    pub fn paper_rig_file(filters: &[&str]) -> RigFile {
+        let cameras = filters
+            .iter()
+            .enumerate()
+            .map(|(i, f)| CameraEntry {
+                row: i / 4,
+                col: i % 4,
+                filter: format!("{BUILTIN_PREFIX}{f}"),
+                sensor: None,
+                image: None,
+                white: None,
+            })
+            .collect();
+        RigFile {
+            name: "paper-2x4".into(),
+            rows: 2,
+            cols: 4,
+            baseline_mm: Baseline {
+                horizontal: 30.0,
+                vertical: 50.0,
+            },
+            focal_length_px: 1800.0,
+            sensor: format!("{BUILTIN_PREFIX}canon_eos_5d_mark_ii"),
+            sensor_interpolation: Interpolation::CubicSpline,
+            illuminant: Some(format!("{BUILTIN_PREFIX}cie_a")),
+            reconstruction: ReconstructionSettings::default(),
+            cameras,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EIGHT: [&str; 8] = [
+        "gel_yellow",
+        "gel_red",
+        "gel_magenta",
+        "gel_blue",
+        "gel_cyan",
+        "gel_green",
+        "gel_orange",
+        "gel_violet",
+    ];
+
+    #[test]
+    fn toml_round_trip_and_load() {
+        let file = Rig::paper_rig_file(&EIGHT);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rig.toml");
+        file.save(&path).unwrap();
+        let rig = Rig::load(&path).unwrap();
+        assert_eq!(rig.file, file);
+        assert_eq!(rig.channel_count(), 24);
+        assert_eq!(rig.cameras[5].row, 1);
+        assert_eq!(rig.cameras[5].col, 1);
+    }
+
+    #[test]
+    fn broken_rigs_are_clear_errors() {
+        let mut dup = Rig::paper_rig_file(&EIGHT);
+        dup.cameras[1].col = 0;
+        let err = Rig::from_file(dup, ".".into()).unwrap_err().to_string();
+        assert!(err.contains("two cameras at row 0 col 0"), "{err}");
+
+        let mut missing = Rig::paper_rig_file(&EIGHT);
+        missing.cameras.pop();
+        assert!(Rig::from_file(missing, ".".into())
+            .unwrap_err()
+            .to_string()
+            .contains("no camera at row 1 col 3"));
+
+        let mut outside = Rig::paper_rig_file(&EIGHT);
+        outside.cameras[0].row = 7;
+        assert!(Rig::from_file(outside, ".".into())
+            .unwrap_err()
+            .to_string()
+            .contains("outside"));
+
+        let mut unknown = Rig::paper_rig_file(&EIGHT);
+        unknown.cameras[0].filter = "builtin:gel_nothing".into();
+        assert!(Rig::from_file(unknown, ".".into())
+            .unwrap_err()
+            .to_string()
+            .contains("gel_nothing"));
+
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("short.csv"),
+            "wavelength_nm,t\n420,0.5\n700,0.5\n",
+        )
+        .unwrap();
+        let mut short = Rig::paper_rig_file(&EIGHT);
+        short.cameras[0].filter = "short.csv".into();
+        let err = Rig::from_file(short, dir.path().into())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("covers 420 to 700 nm but 380 to 780 nm is needed"),
+            "{err}"
+        );
+
+        let err = RigFile::from_toml_str("name = 'x'\nrows = 'two'\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("t.toml"), "{err}");
+        let mut zero = Rig::paper_rig_file(&EIGHT);
+        zero.baseline_mm.vertical = 0.0;
+        assert!(Rig::from_file(zero, ".".into()).is_err());
+    }
+}
