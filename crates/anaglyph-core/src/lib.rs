@@ -29,6 +29,7 @@ pub mod builtin;
 pub mod capture;
 pub mod demux;
 mod error;
+pub mod evaluation;
 pub mod filters;
 pub mod io;
 pub mod metrics;

@@ -13,6 +13,8 @@ use std::path::Path;
 pub struct NpyArray<T> {
     pub shape: Vec<usize>,
     pub data: Vec<T>,
+    /// True when the file held 32-bit floats (so outputs can match it).
+    pub stored_as_f32: bool,
 }
 
 /// Shape and item size declared by an `.npy` header, checked against the file length.
@@ -105,7 +107,11 @@ fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
 fn into_row_major<T: Clone>(array: ArrayD<T>) -> NpyArray<T> {
     let shape = array.shape().to_vec();
     let data = array.as_standard_layout().iter().cloned().collect();
-    NpyArray { shape, data }
+    NpyArray {
+        shape,
+        data,
+        stored_as_f32: false,
+    }
 }
 
 /// Reads a float array (`f4` or `f8`, either byte order, C or Fortran order) as f64.
@@ -116,7 +122,9 @@ pub fn read_npy_f64(path: &Path) -> Result<NpyArray<f64>> {
         Ok(a) => Ok(into_row_major(a)),
         Err(ndarray_npy::ReadNpyError::WrongDescriptor(_)) => {
             let a = ArrayD::<f32>::read_npy(open()?).map_err(|e| read_error(path, e))?;
-            Ok(into_row_major(a.mapv(f64::from)))
+            let mut array = into_row_major(a.mapv(f64::from));
+            array.stored_as_f32 = true;
+            Ok(array)
         }
         Err(e) => Err(read_error(path, e)),
     }

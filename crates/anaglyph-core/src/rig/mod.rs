@@ -9,8 +9,8 @@ mod sensing;
 
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
-    Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile, BUILTIN_PREFIX,
-    MAX_RIG_SIDE,
+    resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,
+    BUILTIN_PREFIX, MAX_RIG_SIDE,
 };
 pub use sensing::{
     condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,

@@ -1,0 +1,223 @@
+//! Command-line interface: one subcommand per user task, choices as enums, every
+//! argument validated before any computation starts.
+
+use anaglyph_core::demux::Solver;
+use anaglyph_core::filters::SelectionCriterion;
+use anaglyph_core::rig::OutOfBand;
+use clap::{Parser, Subcommand, ValueEnum};
+use std::path::PathBuf;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "anaglyph",
+    version,
+    about = "Multispectral light fields from a camera array behind wide-band colour filters"
+)]
+pub struct Args {
+    /// More log output on standard error (-v info, -vv debug).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run the pipeline end to end on built-in data and print what it measured.
+    Demo(DemoArgs),
+    /// Create or inspect a rig file.
+    #[command(subcommand)]
+    Rig(RigCommand),
+    /// Choose the filters that make the sensing matrix best conditioned (or least noisy).
+    SelectFilters(SelectFiltersArgs),
+    /// Compute a filter's transmission from spectrometer readings without (s0) and with (s1) it.
+    CalibrateFilter(CalibrateFilterArgs),
+    /// Solve Eq. 6 for every pixel of a measurement array.
+    Demux(DemuxArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct DemoArgs {
+    /// Number of extra reflectances mixed from the vendored measured sets.
+    #[arg(long, default_value_t = 3000)]
+    pub mixtures: usize,
+    /// Seed of the noise and of the mixtures.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Write the measured figures as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum RigCommand {
+    /// Write the paper's 2×4 rig, its filters chosen by `select-filters` over the built-in library.
+    Init(RigInitArgs),
+    /// Print a rig with cond(C) and plot its effective responses.
+    Show(RigShowArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RigInitArgs {
+    /// Where to write the rig.
+    #[arg(long, default_value = "rig.toml")]
+    pub out: PathBuf,
+    /// Overwrite an existing file.
+    #[arg(long)]
+    pub force: bool,
+    #[arg(long, value_enum, default_value_t = CriterionArg::Condition)]
+    pub criterion: CriterionArg,
+    /// Sensor curve ("builtin:<name>" or CSV path).
+    #[arg(long, default_value = "builtin:canon_eos_5d_mark_ii")]
+    pub sensor: String,
+    /// Illuminant folded into C ("builtin:<name>", CSV path, or "none").
+    #[arg(long, default_value = "builtin:cie_a")]
+    pub illuminant: String,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RigShowArgs {
+    /// The rig file.
+    pub rig: PathBuf,
+    /// Where to write the response plot (SVG); default: beside the rig as <stem>-responses.svg.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Also write the sensing matrix C (rows × unknowns, f64) as .npy for `anaglyph demux`.
+    #[arg(long)]
+    pub export_c: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum CriterionArg {
+    /// Smallest cond(C), as the paper.
+    Condition,
+    /// Smallest expected reconstruction error under sensor noise.
+    Noise,
+}
+
+impl From<CriterionArg> for SelectionCriterion {
+    fn from(c: CriterionArg) -> Self {
+        match c {
+            CriterionArg::Condition => SelectionCriterion::Condition,
+            CriterionArg::Noise => SelectionCriterion::Noise,
+        }
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SelectFiltersArgs {
+    /// How many filters (cameras) to choose.
+    #[arg(long, default_value_t = 8)]
+    pub count: usize,
+    /// Folder of candidate filter CSVs (default: the built-in modelled gel library).
+    #[arg(long)]
+    pub candidates: Option<PathBuf>,
+    /// Sensor curve ("builtin:<name>" or CSV path).
+    #[arg(long, default_value = "builtin:canon_eos_5d_mark_ii")]
+    pub sensor: String,
+    /// Illuminant ("builtin:<name>", CSV path, or "none").
+    #[arg(long, default_value = "builtin:cie_a")]
+    pub illuminant: String,
+    #[arg(long, value_enum, default_value_t = CriterionArg::Condition)]
+    pub criterion: CriterionArg,
+    /// Smoothness weight λ of the solver the noise criterion assumes.
+    #[arg(long, default_value_t = 0.01)]
+    pub lambda: f64,
+    /// Sensor full-well capacity (e⁻) of the noise criterion.
+    #[arg(long, default_value_t = 10_000.0)]
+    pub full_well: f64,
+    /// Read noise (e⁻) of the noise criterion.
+    #[arg(long, default_value_t = 5.0)]
+    pub read_noise: f64,
+    /// How many of the best subsets to print.
+    #[arg(long, default_value_t = 5)]
+    pub keep: usize,
+    #[arg(long, value_enum, default_value_t = OutOfBandArg::Extend)]
+    pub out_of_band: OutOfBandArg,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum OutOfBandArg {
+    Extend,
+    Clamp,
+    Ignore,
+}
+
+impl From<OutOfBandArg> for OutOfBand {
+    fn from(o: OutOfBandArg) -> Self {
+        match o {
+            OutOfBandArg::Extend => OutOfBand::Extend,
+            OutOfBandArg::Clamp => OutOfBand::Clamp,
+            OutOfBandArg::Ignore => OutOfBand::Ignore,
+        }
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct CalibrateFilterArgs {
+    /// Spectrometer reading without the filter (CSV, one or more target columns).
+    #[arg(long)]
+    pub without: PathBuf,
+    /// Reading of the same targets through the filter.
+    #[arg(long = "with")]
+    pub with_filter: PathBuf,
+    /// Where to write the transmission CSV.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The spectrometer's relative measurement error E (Eq. 7 bounds the result by 2E).
+    #[arg(long, default_value_t = 0.01)]
+    pub relative_error: f64,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SolverArg {
+    /// Batched closed form + exact active set (default, fastest).
+    Exact,
+    /// Accelerated projected gradient descent.
+    GradientDescent,
+    /// Conjugate gradient inside the active-set loop.
+    ConjugateGradient,
+    /// LSQR inside the active-set loop.
+    Lsqr,
+    /// Plain dense per-pixel reference.
+    Reference,
+}
+
+impl From<SolverArg> for Solver {
+    fn from(s: SolverArg) -> Self {
+        match s {
+            SolverArg::Exact => Solver::Exact,
+            SolverArg::GradientDescent => Solver::ProjectedGradient,
+            SolverArg::ConjugateGradient => Solver::ConjugateGradient,
+            SolverArg::Lsqr => Solver::Lsqr,
+            SolverArg::Reference => Solver::Reference,
+        }
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct DemuxArgs {
+    /// Sensing matrix C, rows × N (.npy, or CSV of numbers without header).
+    #[arg(long)]
+    pub sensing: PathBuf,
+    /// Measurements P: pixels × rows or H × W × rows (.npy, f32 or f64; NaN = missing).
+    #[arg(long)]
+    pub measurements: PathBuf,
+    /// Output spectra S (.npy, same leading shape, N channels, same float type as P).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Smoothness weight λ (applied exactly).
+    #[arg(long, default_value_t = 0.01)]
+    pub lambda: f64,
+    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
+    pub solver: SolverArg,
+    /// Boolean mask of P's shape (true = use the measurement).
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Relative tolerance of the iterative solvers.
+    #[arg(long, default_value_t = 1e-10)]
+    pub tolerance: f64,
+}

@@ -1,0 +1,151 @@
+//! `anaglyph demux`: Eq. 6 for every pixel of a user's measurement array, with our solvers.
+
+use super::format_seconds;
+use crate::cli::DemuxArgs;
+use crate::progress::spinner;
+use anaglyph_core::demux::{demultiplex, DemuxOptions};
+use anaglyph_core::io::{read_npy_bool, read_npy_f64, write_npy_f32, write_npy_f64};
+use anaglyph_core::rig::{condition_from_singular_values, ILL_CONDITIONED_WARNING};
+use anyhow::{bail, Context};
+use std::path::Path;
+use std::time::Instant;
+
+/// Largest CSV sensing matrix read.
+const MAX_MATRIX_CSV_BYTES: u64 = 16 << 20;
+
+/// Reads C as (rows, cols, row-major values) from .npy or a numeric CSV.
+fn read_sensing(path: &Path) -> anyhow::Result<(usize, usize, Vec<f64>)> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    if is_npy {
+        let a = read_npy_f64(path)?;
+        if a.shape.len() != 2 {
+            bail!(
+                "{}: C has shape {:?} (expected 2-D rows × N)",
+                path.display(),
+                a.shape
+            );
+        }
+        return Ok((a.shape[0], a.shape[1], a.data));
+    }
+    let size = std::fs::metadata(path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .len();
+    if size > MAX_MATRIX_CSV_BYTES {
+        bail!(
+            "{}: {size} bytes (limit {MAX_MATRIX_CSV_BYTES} for a CSV matrix)",
+            path.display()
+        );
+    }
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut values = Vec::new();
+    let mut cols = None;
+    let mut rows = 0;
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let row: Vec<f64> = line
+            .split(',')
+            .map(|f| f.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .with_context(|| format!("{}: line {}: not a row of numbers", path.display(), i + 1))?;
+        if *cols.get_or_insert(row.len()) != row.len() {
+            bail!(
+                "{}: line {} has {} values (expected {})",
+                path.display(),
+                i + 1,
+                row.len(),
+                cols.unwrap_or(0)
+            );
+        }
+        values.extend(row);
+        rows += 1;
+    }
+    match cols {
+        Some(c) if rows > 0 => Ok((rows, c, values)),
+        _ => bail!("{}: no matrix rows", path.display()),
+    }
+}
+
+pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let (rows, n, c) = read_sensing(&args.sensing)?;
+    let p = read_npy_f64(&args.measurements)?;
+    let Some(&last) = p.shape.last() else {
+        bail!(
+            "{}: a 0-d array holds no measurements",
+            args.measurements.display()
+        );
+    };
+    if last != rows {
+        bail!(
+            "{}: last axis has {last} channels but C has {rows} rows (shape {:?})",
+            args.measurements.display(),
+            p.shape
+        );
+    }
+    let mask = args
+        .mask
+        .as_deref()
+        .map(|path| -> anyhow::Result<Vec<bool>> {
+            let m = read_npy_bool(path)?;
+            if m.shape != p.shape {
+                bail!(
+                    "{}: mask shape {:?} differs from P's {:?}",
+                    path.display(),
+                    m.shape,
+                    p.shape
+                );
+            }
+            Ok(m.data)
+        })
+        .transpose()?;
+    let loaded = start.elapsed().as_secs_f64();
+    let sv = faer::MatRef::from_row_major_slice(&c, rows, n)
+        .singular_values()
+        .ok();
+    if let Some(cond) = sv.as_deref().map(condition_from_singular_values) {
+        if cond > ILL_CONDITIONED_WARNING {
+            eprintln!("warning: cond(C) = {cond:.3e}; the smoothness prior (λ = {}) keeps the solve stable", args.lambda);
+        }
+    }
+    let options = DemuxOptions {
+        lambda: args.lambda,
+        solver: args.solver.into(),
+        tolerance: args.tolerance,
+        ..DemuxOptions::default()
+    };
+    let pixels = p.data.len() / rows;
+    let bar = spinner(format!("demultiplexing {pixels} pixels"));
+    let solve_start = Instant::now();
+    let (s, report) = demultiplex(&c, rows, &p.data, mask.as_deref(), 0..n, &options)?;
+    let solved = solve_start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let mut shape = p.shape.clone();
+    *shape.last_mut().unwrap_or(&mut 0) = n;
+    let save_start = Instant::now();
+    if p.stored_as_f32 {
+        write_npy_f32(&args.out, &shape, s.iter().map(|&v| v as f32).collect())?;
+    } else {
+        write_npy_f64(&args.out, &shape, s)?;
+    }
+    let saved = save_start.elapsed().as_secs_f64();
+    println!(
+        "{pixels} pixels × {rows} measurements -> {n} channels ({:?}, λ = {}): load {}, solve {} ({:.1} Mpixel/s), save {}",
+        args.solver,
+        args.lambda,
+        format_seconds(loaded),
+        format_seconds(solved),
+        pixels as f64 / solved / 1e6,
+        format_seconds(saved)
+    );
+    println!(
+        "{} pixels touch s >= 0, {} distinct measurement masks, {} pixels without measurements (NaN)",
+        report.bounded_pixels, report.distinct_masks, report.unmeasured_pixels
+    );
+    Ok(())
+}

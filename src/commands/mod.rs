@@ -1,0 +1,44 @@
+//! One module per subcommand; `run` dispatches.
+
+mod calibrate_filter;
+mod demo;
+mod demux;
+mod rig;
+mod select_filters;
+
+use crate::cli::Command;
+
+/// Runs one parsed command.
+pub fn run(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Demo(args) => demo::run(args),
+        Command::Rig(args) => rig::run(args),
+        Command::SelectFilters(args) => select_filters::run(args),
+        Command::CalibrateFilter(args) => calibrate_filter::run(args),
+        Command::Demux(args) => demux::run(args),
+    }
+}
+
+/// Resolves a curve reference given on the command line ("none" for no curve).
+pub fn optional_curve(
+    reference: &str,
+) -> anyhow::Result<Option<anaglyph_core::spectrum::ResponseCurve>> {
+    if reference.eq_ignore_ascii_case("none") {
+        return Ok(None);
+    }
+    Ok(Some(anaglyph_core::rig::resolve_curve(
+        reference,
+        std::path::Path::new("."),
+    )?))
+}
+
+/// Formats a duration in the unit a reader expects.
+pub fn format_seconds(seconds: f64) -> String {
+    if seconds < 1e-3 {
+        format!("{:.1} µs", seconds * 1e6)
+    } else if seconds < 1.0 {
+        format!("{:.1} ms", seconds * 1e3)
+    } else {
+        format!("{seconds:.2} s")
+    }
+}

@@ -1,0 +1,168 @@
+//! `anaglyph rig init` (the paper's 2×4 rig with selected filters) and `anaglyph rig show`
+//! (the rig, cond(C), out-of-band light, a plot of the effective responses).
+
+use super::optional_curve;
+use super::select_filters::{load_candidates, print_report, run_selection, SelectionInputs};
+use crate::cli::{RigCommand, RigInitArgs, RigShowArgs};
+use anaglyph_core::capture::CameraNoise;
+use anaglyph_core::filters::{SelectionCriterion, SelectionOptions};
+use anaglyph_core::io::write_npy_f64;
+use anaglyph_core::rig::{
+    plot_effective_responses, resolve_curve, EffectiveResponses, OutOfBand, Rig, SensingMatrix,
+    ILL_CONDITIONED_WARNING,
+};
+use anyhow::bail;
+use std::path::{Path, PathBuf};
+
+pub fn run(command: RigCommand) -> anyhow::Result<()> {
+    match command {
+        RigCommand::Init(args) => init(args),
+        RigCommand::Show(args) => show(args),
+    }
+}
+
+fn init(args: RigInitArgs) -> anyhow::Result<()> {
+    if args.out.exists() && !args.force {
+        bail!("{} exists (use --force to overwrite)", args.out.display());
+    }
+    let inputs = SelectionInputs {
+        candidates: load_candidates(None)?,
+        sensor: resolve_curve(&args.sensor, Path::new("."))?,
+        illuminant: optional_curve(&args.illuminant)?,
+    };
+    let options = SelectionOptions {
+        count: 8,
+        criterion: SelectionCriterion::from(args.criterion),
+        noise: CameraNoise::default(),
+        lambda: 0.01,
+        keep: 3,
+    };
+    let (report, seconds) = run_selection(&inputs, &options, OutOfBand::Extend)?;
+    print_report(&report, seconds);
+    let best = &report.best[0];
+    let names: Vec<&str> = best
+        .filters
+        .iter()
+        .map(|&f| report.candidates[f].as_str())
+        .collect();
+    let mut file = Rig::paper_rig_file(&names);
+    file.sensor = args.sensor.clone();
+    file.illuminant =
+        (!args.illuminant.eq_ignore_ascii_case("none")).then(|| args.illuminant.clone());
+    file.save(&args.out)?;
+    println!(
+        "wrote {} (2×4, filters {})",
+        args.out.display(),
+        names.join(", ")
+    );
+    Ok(())
+}
+
+fn show(args: RigShowArgs) -> anyhow::Result<()> {
+    let rig = Rig::load(&args.rig)?;
+    let f = &rig.file;
+    let shape = rig.reconstruction_shape()?;
+    println!(
+        "rig '{}': {} × {} cameras, baselines {} mm × {} mm, focal length {} px",
+        f.name, f.rows, f.cols, f.baseline_mm.horizontal, f.baseline_mm.vertical, f.focal_length_px
+    );
+    println!(
+        "sensor {} ({:?}), illuminant {}",
+        f.sensor,
+        f.sensor_interpolation,
+        f.illuminant.as_deref().unwrap_or("none (C maps radiance)")
+    );
+    println!(
+        "reconstruction: {shape}, λ = {}, out-of-band light: {:?}",
+        f.reconstruction.lambda, f.reconstruction.out_of_band
+    );
+    for cam in &rig.cameras {
+        let (lo, hi) = cam.filter.domain();
+        println!(
+            "  r{}c{}  filter {:<20} ({lo}–{hi} nm)  sensor {} ({} ch){}",
+            cam.row,
+            cam.col,
+            cam.filter.name(),
+            cam.sensor.name(),
+            cam.sensor.channel_count(),
+            cam.image
+                .as_ref()
+                .map(|p| format!("  image {}", p.display()))
+                .unwrap_or_default()
+        );
+    }
+    let responses = EffectiveResponses::of_rig(&rig)?;
+    let c = SensingMatrix::from_responses(&responses, shape, f.reconstruction.out_of_band)?;
+    let sv = c.singular_values()?;
+    let cond = c.condition_number()?;
+    println!(
+        "sensing matrix C: {} × {} (unknown knots {}), integrated over {}–{} nm",
+        c.rows(),
+        c.cols(),
+        c.unknowns,
+        responses.grid.start,
+        responses.grid.end()
+    );
+    println!(
+        "cond(C) = {cond:.4e}  (σ_max {:.4e}, σ_min {:.4e})",
+        sv[0],
+        sv[sv.len() - 1]
+    );
+    if cond > ILL_CONDITIONED_WARNING {
+        eprintln!(
+            "warning: cond(C) = {cond:.3e} > {ILL_CONDITIONED_WARNING:.0e}: C alone is ill-conditioned; the smoothness prior (λ = {}) keeps the solve stable",
+            f.reconstruction.lambda
+        );
+    }
+    let inside = SensingMatrix::in_band_fraction(&responses, &shape);
+    let (worst, label) = inside
+        .iter()
+        .zip(&c.row_labels)
+        .map(|(f, l)| (1.0 - f, l))
+        .fold(
+            (0.0, &c.row_labels[0]),
+            |a, b| if b.0 > a.0 { b } else { a },
+        );
+    println!(
+        "light outside {}–{} nm: up to {:.1} % of a channel's signal ({label}); mean {:.1} %",
+        shape.start - shape.step / 2.0,
+        shape.end() + shape.step / 2.0,
+        100.0 * worst,
+        100.0 * inside.iter().map(|f| 1.0 - f).sum::<f64>() / inside.len() as f64
+    );
+    let plot = args
+        .plot
+        .clone()
+        .unwrap_or_else(|| default_plot_path(&args.rig));
+    plot_effective_responses(
+        &plot,
+        &responses,
+        &c,
+        &shape,
+        &format!(
+            "{}: effective responses (shaded: reconstruction range)",
+            f.name
+        ),
+    )?;
+    println!("wrote {}", plot.display());
+    if let Some(path) = &args.export_c {
+        write_npy_f64(path, &[c.rows(), c.cols()], c.values().to_vec())?;
+        println!(
+            "wrote {} (C, {} × {}; reported bands are columns {}..{})",
+            path.display(),
+            c.rows(),
+            c.cols(),
+            c.reported_offset,
+            c.reported_offset + shape.count
+        );
+    }
+    Ok(())
+}
+
+fn default_plot_path(rig: &Path) -> PathBuf {
+    let stem = rig
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "rig".into());
+    rig.with_file_name(format!("{stem}-responses.svg"))
+}
