@@ -1,1 +1,300 @@
+//! Tests of the `anaglyph` binary as a user runs it: exit codes, printed figures, files
+//! written, and clear errors (never a panic) on bad input.
 
+use anaglyph_core::builtin;
+use anaglyph_core::io::{read_npy_f64, write_npy_f32, write_npy_f64};
+use anaglyph_core::spectrum::ResponseCurve;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn anaglyph(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_anaglyph"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("binary runs")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A failed run: non-zero exit, an "error:" line, no panic.
+fn assert_clean_failure(o: &Output, needle: &str) {
+    assert!(!o.status.success(), "should fail: {}", stdout(o));
+    let err = stderr(o);
+    assert!(
+        err.contains("error:") && err.contains(needle),
+        "stderr: {err}"
+    );
+    assert!(!err.contains("panicked"), "stderr: {err}");
+}
+
+#[test]
+fn rig_init_then_show_writes_the_rig_plot_and_c() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = anaglyph(&["rig", "init", "--out", "rig.toml"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("125970 subsets exhaustively"));
+    let o = anaglyph(&["rig", "init", "--out", "rig.toml"], dir.path());
+    assert_clean_failure(&o, "exists");
+
+    let o = anaglyph(
+        &["rig", "show", "rig.toml", "--export-c", "C.npy"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(
+        out.contains("2 × 4 cameras") && out.contains("cond(C) = "),
+        "{out}"
+    );
+    assert!(out.contains("light outside 446–638 nm"), "{out}");
+    let svg = std::fs::read_to_string(dir.path().join("rig-responses.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("r1c3:b"));
+    let c = read_npy_f64(&dir.path().join("C.npy")).unwrap();
+    assert_eq!(c.shape, vec![24, 52]);
+}
+
+#[test]
+fn demux_recovers_spectra_from_npy_and_keeps_f32() {
+    let dir = tempfile::tempdir().unwrap();
+    // C: 4 rows, 3 bands; S: two pixels; P = C S, with one missing value.
+    let c = vec![1.0, 0.5, 0.0, 0.0, 1.0, 0.5, 0.5, 0.0, 1.0, 0.3, 0.3, 0.3];
+    let s = [[0.2, 0.4, 0.6], [0.8, 0.7, 0.1]];
+    let mut p = Vec::new();
+    for spectrum in &s {
+        for r in 0..4 {
+            p.push((0..3).map(|j| c[r * 3 + j] * spectrum[j]).sum::<f64>() as f32);
+        }
+    }
+    p[5] = f32::NAN;
+    write_npy_f64(&dir.path().join("C.npy"), &[4, 3], c.clone()).unwrap();
+    write_npy_f32(&dir.path().join("P.npy"), &[1, 2, 4], p).unwrap();
+    let o = anaglyph(
+        &[
+            "demux",
+            "--sensing",
+            "C.npy",
+            "--measurements",
+            "P.npy",
+            "--out",
+            "S.npy",
+            "--lambda",
+            "0",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("2 distinct measurement masks"),
+        "{}",
+        stdout(&o)
+    );
+    let out = read_npy_f64(&dir.path().join("S.npy")).unwrap();
+    assert_eq!(out.shape, vec![1, 2, 3]);
+    assert!(out.stored_as_f32);
+    for (got, want) in out.data.iter().zip(s.iter().flatten()) {
+        assert!((got - want).abs() < 1e-5, "{got} vs {want}");
+    }
+    // The same C as CSV, every solver.
+    let csv: String = c
+        .chunks(3)
+        .map(|r| format!("{},{},{}\n", r[0], r[1], r[2]))
+        .collect();
+    std::fs::write(dir.path().join("C.csv"), csv).unwrap();
+    for solver in [
+        "exact",
+        "gradient-descent",
+        "conjugate-gradient",
+        "lsqr",
+        "reference",
+    ] {
+        let o = anaglyph(
+            &[
+                "demux",
+                "--sensing",
+                "C.csv",
+                "--measurements",
+                "P.npy",
+                "--out",
+                "S2.npy",
+                "--solver",
+                solver,
+            ],
+            dir.path(),
+        );
+        assert!(o.status.success(), "{solver}: {}", stderr(&o));
+    }
+}
+
+#[test]
+fn demux_rejects_bad_input_without_writing_output() {
+    let dir = tempfile::tempdir().unwrap();
+    write_npy_f64(&dir.path().join("C.npy"), &[2, 2], vec![1.0, 0.0, 0.0, 1.0]).unwrap();
+    write_npy_f64(&dir.path().join("P3.npy"), &[2, 3], vec![0.1; 6]).unwrap();
+    write_npy_f64(
+        &dir.path().join("Pinf.npy"),
+        &[1, 2],
+        vec![0.1, f64::INFINITY],
+    )
+    .unwrap();
+    let run = |p: &str| {
+        anaglyph(
+            &[
+                "demux",
+                "--sensing",
+                "C.npy",
+                "--measurements",
+                p,
+                "--out",
+                "S.npy",
+            ],
+            dir.path(),
+        )
+    };
+    assert_clean_failure(&run("P3.npy"), "3 channels but C has 2 rows");
+    assert_clean_failure(&run("Pinf.npy"), "infinite");
+    assert_clean_failure(&run("missing.npy"), "missing.npy");
+    std::fs::write(
+        dir.path().join("junk.npy"),
+        b"\x93NUMPY\x01\x00\x10\x00{'descr': '<f8'",
+    )
+    .unwrap();
+    assert_clean_failure(&run("junk.npy"), "junk.npy");
+    assert!(!dir.path().join("S.npy").exists());
+    let o = anaglyph(
+        &[
+            "demux",
+            "--sensing",
+            "C.npy",
+            "--measurements",
+            "P3.npy",
+            "--out",
+            "S.npy",
+            "--lambda",
+            "-1",
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+}
+
+#[test]
+fn calibrate_filter_divides_and_reports_the_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("s0.csv"),
+        "wavelength_nm,a,b\n400,1,2\n500,2,4\n600,4,8\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("s1.csv"),
+        "wavelength_nm,a,b\n400,0.5,1\n500,0.2,0.4\n600,3.6,7.2\n",
+    )
+    .unwrap();
+    let o = anaglyph(
+        &[
+            "calibrate-filter",
+            "--without",
+            "s0.csv",
+            "--with",
+            "s1.csv",
+            "--out",
+            "f.csv",
+            "--relative-error",
+            "0.02",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("relative 4.00 %"), "{}", stdout(&o));
+    let t = ResponseCurve::load_csv(&dir.path().join("f.csv")).unwrap();
+    assert_eq!(t.channel(0), &[0.5, 0.1, 0.9]);
+    std::fs::write(
+        dir.path().join("bad.csv"),
+        "wavelength_nm,a\n400,1\n390,2\n",
+    )
+    .unwrap();
+    let o = anaglyph(
+        &[
+            "calibrate-filter",
+            "--without",
+            "bad.csv",
+            "--with",
+            "s1.csv",
+            "--out",
+            "g.csv",
+        ],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "strictly increasing");
+    assert!(!dir.path().join("g.csv").exists());
+}
+
+#[test]
+fn select_filters_is_exhaustive_over_18_choose_8() {
+    let dir = tempfile::tempdir().unwrap();
+    let candidates = dir.path().join("filters");
+    std::fs::create_dir(&candidates).unwrap();
+    for name in builtin::filter_names().into_iter().take(18) {
+        builtin::filter(name)
+            .unwrap()
+            .save_csv(&candidates.join(format!("{name}.csv")))
+            .unwrap();
+    }
+    let o = anaglyph(
+        &[
+            "select-filters",
+            "--count",
+            "8",
+            "--candidates",
+            "filters",
+            "--keep",
+            "3",
+            "--json",
+            "sel.json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("searched 43758 subsets exhaustively"), "{out}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("sel.json")).unwrap())
+            .unwrap();
+    let best = json["best"].as_array().unwrap();
+    assert_eq!(best.len(), 3);
+    assert!(
+        best[0]["condition_number"].as_f64().unwrap()
+            <= best[1]["condition_number"].as_f64().unwrap()
+    );
+    let o = anaglyph(
+        &["select-filters", "--count", "30", "--candidates", "filters"],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "count 30 with 18 candidates");
+}
+
+#[test]
+fn demo_runs_and_reports_the_paper_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = anaglyph(
+        &["demo", "--mixtures", "200", "--json", "demo.json"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    for needle in ["cond(C)", "634nm", "extend:", "conjugate gradient", "LSQR"] {
+        assert!(out.contains(needle), "missing {needle}: {out}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("demo.json")).unwrap())
+            .unwrap();
+    assert!(json["all"]["psnr"].as_f64().unwrap() > 33.0);
+    assert_eq!(json["all"]["band_psnr"].as_array().unwrap().len(), 24);
+}

@@ -25,6 +25,11 @@
 //! # Ok(()) }
 //! ```
 
+// `!(x > 0.0)` is used on purpose: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Small dense linear algebra reads best with explicit indices.
+#![allow(clippy::needless_range_loop)]
+
 pub mod builtin;
 pub mod capture;
 pub mod demux;

@@ -23,10 +23,16 @@ pub struct Scratch {
     pub s: Vec<f64>,
     pub y: Vec<f64>,
     pub b: Vec<f64>,
+    pub dense: DenseWork,
+    pub work: [Vec<f64>; 4],
+}
+
+/// Buffers of the small dense subproblems: an index set, a matrix and a right-hand side.
+#[derive(Debug, Clone)]
+pub struct DenseWork {
     pub index: Vec<usize>,
     pub matrix: Vec<f64>,
     pub vector: Vec<f64>,
-    pub work: [Vec<f64>; 4],
 }
 
 impl Scratch {
@@ -37,9 +43,11 @@ impl Scratch {
             s: vec![0.0; n],
             y: vec![0.0; n],
             b: vec![0.0; n],
-            index: Vec::with_capacity(n),
-            matrix: vec![0.0; n * n],
-            vector: vec![0.0; n],
+            dense: DenseWork {
+                index: Vec::with_capacity(n),
+                matrix: vec![0.0; n * n],
+                vector: vec![0.0; n],
+            },
             work: [
                 vec![0.0; big],
                 vec![0.0; big],
@@ -115,15 +123,18 @@ pub fn subproblem_schur(
     free: &[bool],
     s: &mut [f64],
     y: &mut [f64],
-    index: &mut Vec<usize>,
-    matrix: &mut [f64],
-    vector: &mut [f64],
+    work: &mut DenseWork,
 ) -> Result<()> {
     let n = eq.n;
     let bound = free.iter().filter(|f| !**f).count();
     if bound * 2 > n {
-        return subproblem_dense(eq, b, free, s, y, index, matrix, vector);
+        return subproblem_dense(eq, b, free, s, y, work);
     }
+    let DenseWork {
+        index,
+        matrix,
+        vector,
+    } = work;
     index.clear();
     index.extend((0..n).filter(|&i| !free[i]));
     let g = index.len();
@@ -134,7 +145,7 @@ pub fn subproblem_schur(
         vector[a] = -s_hat[i];
     }
     if g > 0 && !cholesky_solve_small(&mut matrix[..g * g], g, &mut vector[..g]) {
-        return subproblem_dense(eq, b, free, s, y, index, matrix, vector);
+        return subproblem_dense(eq, b, free, s, y, work);
     }
     s.copy_from_slice(s_hat);
     y.fill(0.0);
@@ -158,11 +169,14 @@ pub fn subproblem_dense(
     free: &[bool],
     s: &mut [f64],
     y: &mut [f64],
-    index: &mut Vec<usize>,
-    matrix: &mut [f64],
-    vector: &mut [f64],
+    work: &mut DenseWork,
 ) -> Result<()> {
     let n = eq.n;
+    let DenseWork {
+        index,
+        matrix,
+        vector,
+    } = work;
     index.clear();
     index.extend((0..n).filter(|&i| free[i]));
     let f = index.len();

@@ -312,9 +312,7 @@ fn solve_chunk(
                 s,
                 y,
                 b,
-                index,
-                matrix,
-                vector,
+                dense,
                 ..
             } = &mut scratch;
             for i in 0..n {
@@ -327,7 +325,7 @@ fn solve_chunk(
             }
             let (ts, ty) = tolerances(eq, hat, b, EXACT_TOLERANCE);
             report.iterations += block_principal_pivoting(free, s, y, ts, ty, |f, s, y| {
-                subproblem_schur(eq, hat, b, f, s, y, index, matrix, vector)
+                subproblem_schur(eq, hat, b, f, s, y, dense)
             })? as u64;
             dst.copy_from_slice(&s[output.clone()]);
         }
@@ -346,9 +344,7 @@ fn solve_chunk(
             s,
             y,
             b,
-            index,
-            matrix,
-            vector,
+            dense,
             work,
         } = &mut scratch;
         eq.rhs(pv, b);
@@ -395,7 +391,7 @@ fn solve_chunk(
                                 options.max_iterations,
                                 it,
                             ),
-                            _ => subproblem_dense(eq, b, f, s, y, index, matrix, vector),
+                            _ => subproblem_dense(eq, b, f, s, y, dense),
                         }
                     };
                 inner(free, s, y, &mut iterations)?;
@@ -414,7 +410,7 @@ fn solve_chunk(
                 }
             }
         }
-        if s.iter().any(|&v| v == 0.0) {
+        if s.contains(&0.0) {
             report.bounded_pixels += 1;
         }
         report.iterations += iterations as u64;
