@@ -3,8 +3,10 @@
 use super::format_seconds;
 use crate::cli::DemuxArgs;
 use crate::progress::spinner;
-use anaglyph_core::demux::{demultiplex, DemuxOptions};
-use anaglyph_core::io::{read_npy_bool, read_npy_f64, write_npy_f32, write_npy_f64};
+use anaglyph_core::demux::{demultiplex_as, DemuxOptions, DemuxReport, Sample};
+use anaglyph_core::io::{
+    read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32, write_npy_f64, FloatArray,
+};
 use anaglyph_core::rig::{condition_from_singular_values, ILL_CONDITIONED_WARNING};
 use anyhow::{bail, Context};
 use std::path::Path;
@@ -74,8 +76,9 @@ fn read_sensing(path: &Path) -> anyhow::Result<(usize, usize, Vec<f64>)> {
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let (rows, n, c) = read_sensing(&args.sensing)?;
-    let p = read_npy_f64(&args.measurements)?;
-    let Some(&last) = p.shape.last() else {
+    let p = read_npy_float(&args.measurements)?;
+    let shape_in = p.shape().to_vec();
+    let Some(&last) = shape_in.last() else {
         bail!(
             "{}: a 0-d array holds no measurements",
             args.measurements.display()
@@ -85,7 +88,7 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
         bail!(
             "{}: last axis has {last} channels but C has {rows} rows (shape {:?})",
             args.measurements.display(),
-            p.shape
+            shape_in
         );
     }
     let mask = args
@@ -93,12 +96,12 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|path| -> anyhow::Result<Vec<bool>> {
             let m = read_npy_bool(path)?;
-            if m.shape != p.shape {
+            if m.shape != shape_in {
                 bail!(
                     "{}: mask shape {:?} differs from P's {:?}",
                     path.display(),
                     m.shape,
-                    p.shape
+                    shape_in
                 );
             }
             Ok(m.data)
@@ -119,20 +122,43 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
         tolerance: args.tolerance,
         ..DemuxOptions::default()
     };
-    let pixels = p.data.len() / rows;
-    let bar = spinner(format!("demultiplexing {pixels} pixels"));
-    let solve_start = Instant::now();
-    let (s, report) = demultiplex(&c, rows, &p.data, mask.as_deref(), 0..n, &options)?;
-    let solved = solve_start.elapsed().as_secs_f64();
-    bar.finish_and_clear();
-    let mut shape = p.shape.clone();
-    *shape.last_mut().unwrap_or(&mut 0) = n;
-    let save_start = Instant::now();
-    if p.stored_as_f32 {
-        write_npy_f32(&args.out, &shape, s.iter().map(|&v| v as f32).collect())?;
-    } else {
-        write_npy_f64(&args.out, &shape, s)?;
+    let pixels = shape_in.iter().product::<usize>() / rows;
+    let mut shape = shape_in.clone();
+    if let Some(last) = shape.last_mut() {
+        *last = n;
     }
+    let bar = spinner(format!("demultiplexing {pixels} pixels"));
+    // Solve and save in the input's own float type (no whole-image conversions).
+    fn solve<T: Sample>(
+        c: &[f64],
+        rows: usize,
+        n: usize,
+        data: &[T],
+        mask: Option<&[bool]>,
+        options: &DemuxOptions,
+    ) -> anyhow::Result<(Vec<T>, DemuxReport, f64)> {
+        let start = Instant::now();
+        let (s, report) = demultiplex_as::<T, T>(c, rows, data, mask, 0..n, options)?;
+        Ok((s, report, start.elapsed().as_secs_f64()))
+    }
+    let (report, solved, save_start) = match p {
+        FloatArray::F32(a) => {
+            let (s, report, solved) = solve(&c, rows, n, &a.data, mask.as_deref(), &options)?;
+            drop(a);
+            bar.finish_and_clear();
+            let save_start = Instant::now();
+            write_npy_f32(&args.out, &shape, s)?;
+            (report, solved, save_start)
+        }
+        FloatArray::F64(a) => {
+            let (s, report, solved) = solve(&c, rows, n, &a.data, mask.as_deref(), &options)?;
+            drop(a);
+            bar.finish_and_clear();
+            let save_start = Instant::now();
+            write_npy_f64(&args.out, &shape, s)?;
+            (report, solved, save_start)
+        }
+    };
     let saved = save_start.elapsed().as_secs_f64();
     println!(
         "{pixels} pixels × {rows} measurements -> {n} channels ({:?}, λ = {}): load {}, solve {} ({:.1} Mpixel/s), save {}",

@@ -34,6 +34,9 @@ use std::ops::Range;
 /// Pixels per rayon task: 8192 pixels × 24 measurements × 8 B = 1.5 MiB of input, which
 /// keeps a task's working set in L2 while giving a 2-megapixel image ~250 tasks.
 const PIXELS_PER_TASK: usize = 8192;
+/// Tasks per rayon thread on the unmasked path: enough for load balance, few enough that
+/// each task reuses one set of buffers over many chunks.
+const TASKS_PER_THREAD: usize = 4;
 /// Pixels gathered per pass when measurement masks differ (bounds the extra memory).
 const PIXELS_PER_PASS: usize = 1 << 18;
 /// Relative tolerance of the exact path's feasibility checks.
@@ -105,6 +108,35 @@ impl DemuxReport {
     }
 }
 
+/// The float type measurements arrive in and spectra leave in (f32 or f64); all
+/// arithmetic is f64. Reading and writing the caller's own type avoids whole-image
+/// conversion copies, which cost more than the solve on large images.
+pub trait Sample: Copy + Send + Sync + 'static {
+    const NAN: Self;
+    fn to_f64(self) -> f64;
+    fn from_f64(value: f64) -> Self;
+}
+
+impl Sample for f64 {
+    const NAN: Self = f64::NAN;
+    fn to_f64(self) -> f64 {
+        self
+    }
+    fn from_f64(value: f64) -> Self {
+        value
+    }
+}
+
+impl Sample for f32 {
+    const NAN: Self = f32::NAN;
+    fn to_f64(self) -> f64 {
+        f64::from(self)
+    }
+    fn from_f64(value: f64) -> Self {
+        value as f32
+    }
+}
+
 /// Solves Eq. 6 for every pixel. `c` is row-major `rows × n`; `measurements` is
 /// `pixels × rows`; `mask` (same shape, true = use) is optional; the result is
 /// `pixels × output.len()` holding knots `output` of each solution.
@@ -116,19 +148,29 @@ pub fn demultiplex(
     output: Range<usize>,
     options: &DemuxOptions,
 ) -> Result<(Vec<f64>, DemuxReport)> {
-    let n = validate(c, rows, measurements, mask, &output, options)?;
+    demultiplex_as(c, rows, measurements, mask, output, options)
+}
+
+/// [`demultiplex`] for measurements of type `I`, spectra returned as type `O`.
+pub fn demultiplex_as<I: Sample, O: Sample>(
+    c: &[f64],
+    rows: usize,
+    measurements: &[I],
+    mask: Option<&[bool]>,
+    output: Range<usize>,
+    options: &DemuxOptions,
+) -> Result<(Vec<O>, DemuxReport)> {
+    let (n, complete) = validate(c, rows, measurements, mask, &output, options)?;
+    if complete {
+        return solve_complete(c, rows, n, measurements, &output, options);
+    }
     let pixels = measurements.len() / rows;
     let out_n = output.len();
-    let full: u128 = if rows == 128 {
-        u128::MAX
-    } else {
-        (1u128 << rows) - 1
-    };
     let key_of = |px: usize| -> u128 {
         let p = &measurements[px * rows..(px + 1) * rows];
         let mut key = 0u128;
         for (r, v) in p.iter().enumerate() {
-            if !v.is_nan() && mask.is_none_or(|m| m[px * rows + r]) {
+            if !v.to_f64().is_nan() && mask.is_none_or(|m| m[px * rows + r]) {
                 key |= 1 << r;
             }
         }
@@ -146,36 +188,23 @@ pub fn demultiplex(
             NormalEquations::new(c, n, kept, options.lambda).map(|eq| (k, eq))
         })
         .collect::<Result<_>>()?;
-    let mut result = vec![f64::NAN; pixels * out_n];
+    let mut result = vec![O::NAN; pixels * out_n];
     let mut report = DemuxReport {
         distinct_masks: systems.len(),
         ..Default::default()
     };
-
-    if distinct.len() == 1 && distinct[0] == full {
-        // Every pixel sees every measurement: no gathering.
-        let eq = &systems[&full];
-        let part = result
-            .par_chunks_mut(PIXELS_PER_TASK * out_n)
-            .zip(measurements.par_chunks(PIXELS_PER_TASK * rows))
-            .map(|(out, p)| solve_chunk(eq, p, out, &output, options))
-            .try_reduce(DemuxReport::default, |a, b| Ok(a.merge(b)))?;
-        report = report.merge(part);
-        report.pixels = pixels;
-        return Ok((result, report));
-    }
 
     // Mixed masks: sort pixels by mask, gather, solve, scatter, one bounded pass at a time.
     let mut order: Vec<usize> = (0..pixels).collect();
     order.par_sort_unstable_by_key(|&px| keys[px]);
     for pass in order.chunks(PIXELS_PER_PASS) {
         let groups: Vec<&[usize]> = pass.chunk_by(|a, b| keys[*a] == keys[*b]).collect();
-        let solved: Vec<(Vec<f64>, DemuxReport)> = groups
+        let solved: Vec<(Vec<O>, DemuxReport)> = groups
             .par_iter()
             .flat_map_iter(|group| group.chunks(PIXELS_PER_TASK))
-            .map(|chunk| -> Result<(Vec<f64>, DemuxReport)> {
+            .map(|chunk| -> Result<(Vec<O>, DemuxReport)> {
                 let key = keys[chunk[0]];
-                let mut out = vec![f64::NAN; chunk.len() * out_n];
+                let mut out = vec![O::NAN; chunk.len() * out_n];
                 if key == 0 {
                     let rep = DemuxReport {
                         unmeasured_pixels: chunk.len(),
@@ -187,9 +216,14 @@ pub fn demultiplex(
                 let m = eq.kept_rows.len();
                 let mut p = Vec::with_capacity(chunk.len() * m);
                 for &px in chunk {
-                    p.extend(eq.kept_rows.iter().map(|&r| measurements[px * rows + r]));
+                    p.extend(
+                        eq.kept_rows
+                            .iter()
+                            .map(|&r| measurements[px * rows + r].to_f64()),
+                    );
                 }
-                let rep = solve_chunk(eq, &p, &mut out, &output, options)?;
+                let mut buffers = ChunkBuffers::new(n, m);
+                let rep = solve_chunk(eq, &p, &mut out, &output, options, &mut buffers)?;
                 Ok((out, rep))
             })
             .collect::<Result<_>>()?;
@@ -206,14 +240,56 @@ pub fn demultiplex(
     Ok((result, report))
 }
 
-fn validate(
+/// Every pixel sees every measurement: one system, no gathering. Work is split into a few
+/// tasks per thread, each solving its pixels chunk by chunk with one set of buffers.
+fn solve_complete<I: Sample, O: Sample>(
     c: &[f64],
     rows: usize,
-    measurements: &[f64],
+    n: usize,
+    measurements: &[I],
+    output: &Range<usize>,
+    options: &DemuxOptions,
+) -> Result<(Vec<O>, DemuxReport)> {
+    let pixels = measurements.len() / rows;
+    let out_n = output.len();
+    let eq = NormalEquations::new(c, n, (0..rows).collect(), options.lambda)?;
+    let tasks = rayon::current_num_threads() * TASKS_PER_THREAD;
+    let per_task = pixels.div_ceil(tasks).div_ceil(PIXELS_PER_TASK).max(1) * PIXELS_PER_TASK;
+    // Zero-initialised (calloc): pages are faulted in by the parallel writers.
+    let mut result = vec![O::from_f64(0.0); pixels * out_n];
+    let mut report = result
+        .par_chunks_mut(per_task * out_n)
+        .zip(measurements.par_chunks(per_task * rows))
+        .map(|(out, p)| {
+            let mut buffers = ChunkBuffers::new(n, rows);
+            let mut report = DemuxReport::default();
+            let chunks = out
+                .chunks_mut(PIXELS_PER_TASK * out_n)
+                .zip(p.chunks(PIXELS_PER_TASK * rows));
+            for (o, pc) in chunks {
+                let mut p64 = std::mem::take(&mut buffers.p64);
+                p64.clear();
+                p64.extend(pc.iter().map(|v| v.to_f64()));
+                report = report.merge(solve_chunk(&eq, &p64, o, output, options, &mut buffers)?);
+                buffers.p64 = p64;
+            }
+            Ok(report)
+        })
+        .try_reduce(DemuxReport::default, |a, b| Ok(a.merge(b)))?;
+    report.pixels = pixels;
+    report.distinct_masks = 1;
+    Ok((result, report))
+}
+
+/// Checks shapes and values; returns N and whether no measurement is missing.
+fn validate<I: Sample>(
+    c: &[f64],
+    rows: usize,
+    measurements: &[I],
     mask: Option<&[bool]>,
     output: &Range<usize>,
     options: &DemuxOptions,
-) -> Result<usize> {
+) -> Result<(usize, bool)> {
     if rows == 0 || rows > MAX_MEASUREMENTS || c.len() % rows != 0 || c.is_empty() {
         return Err(Error::invalid(
             "sensing matrix",
@@ -246,7 +322,10 @@ fn validate(
             });
         }
     }
-    if let Some(i) = measurements.par_iter().position_any(|v| v.is_infinite()) {
+    if let Some(i) = measurements
+        .par_iter()
+        .position_any(|v| v.to_f64().is_infinite())
+    {
         return Err(Error::invalid(
             "measurements",
             format!(
@@ -256,6 +335,8 @@ fn validate(
             ),
         ));
     }
+    let complete = !measurements.par_iter().any(|v| v.to_f64().is_nan())
+        && mask.is_none_or(|m| m.par_iter().all(|&k| k));
     if output.end > n || output.is_empty() {
         return Err(Error::invalid(
             "demultiplex",
@@ -268,16 +349,43 @@ fn validate(
             format!("lambda {} (expected finite and >= 0)", options.lambda),
         ));
     }
-    Ok(n)
+    Ok((n, complete))
+}
+
+/// Copies a solution into the output type.
+fn write_spectrum<O: Sample>(dst: &mut [O], values: &[f64]) {
+    for (d, &v) in dst.iter_mut().zip(values) {
+        *d = O::from_f64(v);
+    }
+}
+
+/// Per-task buffers, reused across the chunks one rayon task solves.
+struct ChunkBuffers {
+    scratch: Scratch,
+    /// Unconstrained solutions of a chunk, `PIXELS_PER_TASK × n`.
+    s_hat: Vec<f64>,
+    /// A chunk's measurements converted to f64.
+    p64: Vec<f64>,
+}
+
+impl ChunkBuffers {
+    fn new(n: usize, rows: usize) -> Self {
+        ChunkBuffers {
+            scratch: Scratch::new(n, rows),
+            s_hat: Vec::new(),
+            p64: Vec::new(),
+        }
+    }
 }
 
 /// Solves one chunk of pixels that share `eq`; `p` holds their kept measurements.
-fn solve_chunk(
+fn solve_chunk<O: Sample>(
     eq: &NormalEquations,
     p: &[f64],
-    out: &mut [f64],
+    out: &mut [O],
     output: &Range<usize>,
     options: &DemuxOptions,
+    buffers: &mut ChunkBuffers,
 ) -> Result<DemuxReport> {
     let n = eq.n;
     let m = eq.kept_rows.len();
@@ -287,12 +395,12 @@ fn solve_chunk(
         pixels,
         ..Default::default()
     };
-    let mut scratch = Scratch::new(n, m);
+    let ChunkBuffers { scratch, s_hat, .. } = buffers;
     if options.solver == Solver::Exact {
         // Unconstrained solutions of the whole chunk in one product: Ŝ = P Aᵀ.
-        let mut s_hat = vec![0.0; pixels * n];
+        s_hat.resize(pixels * n, 0.0);
         faer::linalg::matmul::matmul(
-            faer::MatMut::from_row_major_slice_mut(&mut s_hat, pixels, n),
+            faer::MatMut::from_row_major_slice_mut(&mut s_hat[..pixels * n], pixels, n),
             faer::Accum::Replace,
             faer::MatRef::from_row_major_slice(p, pixels, m),
             faer::MatRef::from_row_major_slice(&eq.a_t, m, n),
@@ -303,7 +411,7 @@ fn solve_chunk(
             let hat = &s_hat[px * n..(px + 1) * n];
             let dst = &mut out[px * out_n..(px + 1) * out_n];
             if hat.iter().all(|&v| v >= 0.0) {
-                dst.copy_from_slice(&hat[output.clone()]);
+                write_spectrum(dst, &hat[output.clone()]);
                 continue;
             }
             report.bounded_pixels += 1;
@@ -314,7 +422,7 @@ fn solve_chunk(
                 b,
                 dense,
                 ..
-            } = &mut scratch;
+            } = &mut *scratch;
             for i in 0..n {
                 b[i] = eq.h[i * n..(i + 1) * n]
                     .iter()
@@ -327,7 +435,7 @@ fn solve_chunk(
             report.iterations += block_principal_pivoting(free, s, y, ts, ty, |f, s, y| {
                 subproblem_schur(eq, hat, b, f, s, y, dense)
             })? as u64;
-            dst.copy_from_slice(&s[output.clone()]);
+            write_spectrum(dst, &s[output.clone()]);
         }
         return Ok(report);
     }
@@ -346,7 +454,7 @@ fn solve_chunk(
             b,
             dense,
             work,
-        } = &mut scratch;
+        } = &mut *scratch;
         eq.rhs(pv, b);
         let mut iterations = 0usize;
         match options.solver {
@@ -414,7 +522,7 @@ fn solve_chunk(
             report.bounded_pixels += 1;
         }
         report.iterations += iterations as u64;
-        dst.copy_from_slice(&s[output.clone()]);
+        write_spectrum(dst, &s[output.clone()]);
     }
     Ok(report)
 }

@@ -242,3 +242,32 @@ fn bad_input_is_an_error_not_a_panic() {
     );
     assert!(matches!(singular, Err(Error::SingularNormalMatrix { .. })));
 }
+
+#[test]
+fn f32_input_and_output_match_the_f64_path() {
+    let mut seed = 5u64;
+    let (rows, n, pixels) = (8, 12, 500);
+    let c: Vec<f64> = (0..rows * n).map(|_| uniform(&mut seed) * 0.2).collect();
+    let p: Vec<f64> = (0..rows * pixels)
+        .map(|_| uniform(&mut seed) - 0.1)
+        .collect();
+    let p32: Vec<f32> = p.iter().map(|&v| v as f32).collect();
+    let o = options(Solver::Exact, 0.01);
+    let (wide, _) = demultiplex(
+        &c,
+        rows,
+        &p32.iter().map(|&v| f64::from(v)).collect::<Vec<_>>(),
+        None,
+        2..10,
+        &o,
+    )
+    .unwrap();
+    let (narrow, report) = demultiplex_as::<f32, f32>(&c, rows, &p32, None, 2..10, &o).unwrap();
+    assert_eq!(report.pixels, pixels);
+    for (a, b) in wide.iter().zip(&narrow) {
+        assert!(
+            (a - f64::from(*b)).abs() <= 1e-6 * (1.0 + a.abs()),
+            "{a} vs {b}"
+        );
+    }
+}

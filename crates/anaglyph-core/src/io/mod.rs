@@ -13,7 +13,9 @@ mod pfm;
 pub use atomic::write_atomically;
 pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
 pub use linear_image::{read_linear_image, write_png16, LinearImage};
-pub use npy::{read_npy_bool, read_npy_f64, write_npy_f32, write_npy_f64, NpyArray};
+pub use npy::{
+    read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32, write_npy_f64, FloatArray, NpyArray,
+};
 pub use pfm::{read_pfm, write_pfm, PfmImage};
 
 /// Largest raster (pixels × channels) any reader allocates: 2^31 values (8 GiB of f32).

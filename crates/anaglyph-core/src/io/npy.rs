@@ -17,8 +17,17 @@ pub struct NpyArray<T> {
     pub stored_as_f32: bool,
 }
 
-/// Shape and item size declared by an `.npy` header, checked against the file length.
-fn check_header(path: &Path) -> Result<()> {
+/// Element types an `.npy` header can declare that we read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Descriptor {
+    F32,
+    F64,
+    Bool,
+    Other,
+}
+
+/// Checks the header's shape against the file length; returns the element type.
+fn check_header(path: &Path) -> Result<Descriptor> {
     use std::io::Read;
     let bad = |message: String| Error::Parse {
         context: path.display().to_string(),
@@ -52,6 +61,15 @@ fn check_header(path: &Path) -> Result<()> {
     file.read_exact(&mut header)
         .map_err(|e| Error::io(path, e))?;
     let header = String::from_utf8_lossy(&header);
+    let descriptor = if header.contains("f8'") {
+        Descriptor::F64
+    } else if header.contains("f4'") {
+        Descriptor::F32
+    } else if header.contains("b1'") {
+        Descriptor::Bool
+    } else {
+        Descriptor::Other
+    };
     let item = if header.contains("f8") || header.contains("i8") || header.contains("u8") {
         8
     } else if header.contains("f4") || header.contains("i4") || header.contains("u4") {
@@ -93,7 +111,7 @@ fn check_header(path: &Path) -> Result<()> {
     if file_len != need {
         return Err(bad(format!("{file_len} bytes (header declares {need})")));
     }
-    Ok(())
+    Ok(descriptor)
 }
 
 fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
@@ -106,7 +124,13 @@ fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
 
 fn into_row_major<T: Clone>(array: ArrayD<T>) -> NpyArray<T> {
     let shape = array.shape().to_vec();
-    let data = array.as_standard_layout().iter().cloned().collect();
+    // Moving the buffer out avoids a per-element walk of a dynamic-rank array.
+    let standard = if array.is_standard_layout() {
+        array
+    } else {
+        array.as_standard_layout().into_owned()
+    };
+    let (data, _) = standard.into_raw_vec_and_offset();
     NpyArray {
         shape,
         data,
@@ -114,20 +138,55 @@ fn into_row_major<T: Clone>(array: ArrayD<T>) -> NpyArray<T> {
     }
 }
 
-/// Reads a float array (`f4` or `f8`, either byte order, C or Fortran order) as f64.
-pub fn read_npy_f64(path: &Path) -> Result<NpyArray<f64>> {
-    check_header(path)?;
-    let open = || std::fs::File::open(path).map_err(|e| Error::io(path, e));
-    match ArrayD::<f64>::read_npy(open()?) {
-        Ok(a) => Ok(into_row_major(a)),
-        Err(ndarray_npy::ReadNpyError::WrongDescriptor(_)) => {
-            let a = ArrayD::<f32>::read_npy(open()?).map_err(|e| read_error(path, e))?;
-            let mut array = into_row_major(a.mapv(f64::from));
-            array.stored_as_f32 = true;
-            Ok(array)
+/// A float array as stored: f32 or f64.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FloatArray {
+    F32(NpyArray<f32>),
+    F64(NpyArray<f64>),
+}
+
+impl FloatArray {
+    pub fn shape(&self) -> &[usize] {
+        match self {
+            FloatArray::F32(a) => &a.shape,
+            FloatArray::F64(a) => &a.shape,
         }
-        Err(e) => Err(read_error(path, e)),
     }
+}
+
+/// Reads a float array (`f4` or `f8`, either byte order, C or Fortran order) in its own type.
+pub fn read_npy_float(path: &Path) -> Result<FloatArray> {
+    let descriptor = check_header(path)?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    match descriptor {
+        Descriptor::F64 => {
+            let a = ArrayD::<f64>::read_npy(file).map_err(|e| read_error(path, e))?;
+            Ok(FloatArray::F64(into_row_major(a)))
+        }
+        Descriptor::F32 => {
+            let a = ArrayD::<f32>::read_npy(file).map_err(|e| read_error(path, e))?;
+            let mut array = into_row_major(a);
+            array.stored_as_f32 = true;
+            Ok(FloatArray::F32(array))
+        }
+        _ => Err(Error::Parse {
+            context: path.display().to_string(),
+            line: 0,
+            message: "element type is not float32 or float64".into(),
+        }),
+    }
+}
+
+/// Reads a float array as f64 (converting f32).
+pub fn read_npy_f64(path: &Path) -> Result<NpyArray<f64>> {
+    Ok(match read_npy_float(path)? {
+        FloatArray::F64(a) => a,
+        FloatArray::F32(a) => NpyArray {
+            shape: a.shape,
+            data: a.data.iter().map(|&v| f64::from(v)).collect(),
+            stored_as_f32: true,
+        },
+    })
 }
 
 /// Reads a boolean array.
