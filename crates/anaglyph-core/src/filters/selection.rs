@@ -72,8 +72,10 @@ struct Problem {
     channels: usize,
     /// Rows of C per candidate, `channels × n` each, normalised per camera.
     rows: Vec<Vec<f64>>,
-    /// Second moment of the prior on the knots, `n × n`.
-    second_moment: Vec<f64>,
+    /// Prior spectra on the knots, one per column (`n × count`).
+    prior: faer::Mat<f64>,
+    /// `DᵀD`, row-major `n × n`.
+    difference_gram: Vec<f64>,
     /// Mean prior spectrum on the knots.
     mean: Vec<f64>,
     reported: std::ops::Range<usize>,
@@ -107,58 +109,61 @@ impl Problem {
     }
 
     fn expected_rmse(&self, subset: &[usize]) -> f64 {
+        use faer::linalg::matmul::matmul;
+        use faer::{Accum, Mat, Par};
         let n = self.n;
-        let c = self.stacked(subset);
+        let stacked = self.stacked(subset);
         let m = subset.len() * self.channels;
-        let mut h = difference_gram(n);
-        h.iter_mut().for_each(|v| *v *= self.lambda);
-        for row in c.chunks_exact(n) {
-            for i in 0..n {
-                for j in 0..n {
-                    h[i * n + j] += row[i] * row[j];
-                }
-            }
-        }
-        let Ok(llt) = faer::Mat::from_fn(n, n, |i, j| h[i * n + j]).llt(faer::Side::Lower) else {
+        let c = faer::MatRef::from_row_major_slice(&stacked, m, n);
+        // H = CᵀC + λDᵀD
+        let mut h = Mat::from_fn(n, n, |i, j| self.lambda * self.difference_gram[i * n + j]);
+        matmul(h.as_mut(), Accum::Add, c.transpose(), c, 1.0, Par::Seq);
+        let Ok(llt) = h.llt(faer::Side::Lower) else {
             return f64::INFINITY;
         };
         let h_inv = llt.inverse();
-        // A = H⁻¹Cᵀ (n × m), only the reported rows are needed.
+        // A = (H⁻¹Cᵀ) on the reported rows; E = A C − I on those rows.
         let reported = self.reported.clone();
-        let mut a = vec![0.0; reported.len() * m];
-        for (ai, i) in reported.clone().enumerate() {
-            for r in 0..m {
-                a[ai * m + r] = (0..n).map(|k| h_inv[(i, k)] * c[r * n + k]).sum();
-            }
+        let k = reported.len();
+        let mut a = Mat::<f64>::zeros(k, m);
+        matmul(
+            a.as_mut(),
+            Accum::Replace,
+            h_inv.as_ref().subrows(reported.start, k),
+            c.transpose(),
+            1.0,
+            Par::Seq,
+        );
+        let mut e = Mat::<f64>::zeros(k, n);
+        matmul(e.as_mut(), Accum::Replace, a.as_ref(), c, 1.0, Par::Seq);
+        for (row, i) in reported.clone().enumerate() {
+            e[(row, i)] -= 1.0;
         }
-        // Bias: E = A C − I on the reported rows; tr(E R Eᵀ).
-        let mut bias = 0.0;
-        let mut e_row = vec![0.0; n];
-        for (ai, i) in reported.clone().enumerate() {
-            for (j, e) in e_row.iter_mut().enumerate() {
-                *e = (0..m).map(|r| a[ai * m + r] * c[r * n + j]).sum::<f64>()
-                    - if i == j { 1.0 } else { 0.0 };
-            }
-            for j in 0..n {
-                let rj: f64 = (0..n)
-                    .map(|k| self.second_moment[j * n + k] * e_row[k])
-                    .sum();
-                bias += e_row[j] * rj;
-            }
-        }
-        // Variance at the mean signal.
+        // Bias: mean over prior spectra of ‖E s‖², as ‖E S‖²_F / count.
+        let samples = self.prior.ncols();
+        let mut es = Mat::<f64>::zeros(k, samples);
+        matmul(
+            es.as_mut(),
+            Accum::Replace,
+            e.as_ref(),
+            self.prior.as_ref(),
+            1.0,
+            Par::Seq,
+        );
+        let bias = es.norm_l2().powi(2) / samples as f64;
+        // Variance at the mean signal: Σ_r σ_r² ‖A[:, r]‖².
         let mut variance = 0.0;
         for r in 0..m {
-            let signal: f64 = c[r * n..(r + 1) * n]
+            let signal: f64 = stacked[r * n..(r + 1) * n]
                 .iter()
                 .zip(&self.mean)
                 .map(|(c, s)| c * s)
                 .sum();
             let sigma = self.noise.sigma(signal);
-            let column: f64 = (0..reported.len()).map(|ai| a[ai * m + r].powi(2)).sum();
+            let column: f64 = (0..k).map(|row| a[(row, r)].powi(2)).sum();
             variance += sigma * sigma * column;
         }
-        ((bias + variance) / reported.len() as f64).sqrt()
+        ((bias + variance) / k as f64).sqrt()
     }
 
     fn score(&self, subset: &[usize], criterion: SelectionCriterion) -> f64 {
@@ -216,21 +221,19 @@ pub fn select_filters(
         .map(|j| prior.sample(j, &knots, Interpolation::Linear))
         .collect::<Result<_>>()?;
     let count = spectra.len().max(1) as f64;
-    let mut second_moment = vec![0.0; n * n];
     let mut mean = vec![0.0; n];
-    for s in &spectra {
-        for i in 0..n {
-            mean[i] += s[i] / count;
-            for j in 0..n {
-                second_moment[i * n + j] += s[i] * s[j] / count;
-            }
+    for spectrum in &spectra {
+        for (m, v) in mean.iter_mut().zip(spectrum) {
+            *m += v / count;
         }
     }
+    let prior_matrix = faer::Mat::from_fn(n, spectra.len(), |i, j| spectra[j][i]);
     let problem = Problem {
         n,
         channels,
         rows,
-        second_moment,
+        prior: prior_matrix,
+        difference_gram: difference_gram(n),
         mean,
         reported: c.reported_offset..c.reported_offset + reported.count,
         lambda: options.lambda,
