@@ -132,6 +132,9 @@ pub struct SelectFiltersArgs {
     /// How many of the best subsets to print.
     #[arg(long, default_value_t = 5)]
     pub keep: usize,
+    /// Search exhaustively up to this many subsets, otherwise greedy selection plus swaps.
+    #[arg(long, default_value_t = anaglyph_core::filters::EXHAUSTIVE_LIMIT)]
+    pub exhaustive_limit: u64,
     #[arg(long, value_enum, default_value_t = OutOfBandArg::Extend)]
     pub out_of_band: OutOfBandArg,
     /// Write the report as JSON here.
@@ -198,6 +201,25 @@ impl From<SolverArg> for Solver {
     }
 }
 
+/// Parses `START:STEP` (nm).
+fn parse_wavelengths(text: &str) -> Result<(f64, f64), String> {
+    let (a, b) = text
+        .split_once(':')
+        .ok_or("expected START:STEP, e.g. 450:8")?;
+    let start: f64 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{a}' is not a number"))?;
+    let step: f64 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{b}' is not a number"))?;
+    if !(start.is_finite() && step.is_finite() && start > 0.0 && step > 0.0) {
+        return Err(format!("START {start} and STEP {step} must be positive"));
+    }
+    Ok((start, step))
+}
+
 #[derive(Debug, clap::Args)]
 pub struct DemuxArgs {
     /// Sensing matrix C, rows × N (.npy, or CSV of numbers without header).
@@ -206,9 +228,13 @@ pub struct DemuxArgs {
     /// Measurements P: pixels × rows or H × W × rows (.npy, f32 or f64; NaN = missing).
     #[arg(long)]
     pub measurements: PathBuf,
-    /// Output spectra S (.npy, same leading shape, N channels, same float type as P).
+    /// Output spectra S: .npy (same leading shape, N channels, same float type as P), or an
+    /// ENVI cube when the name ends in .hdr (P must be H × W × rows; float32 + .img beside it).
     #[arg(long)]
     pub out: PathBuf,
+    /// Band centres of C's columns for the ENVI header, as START:STEP in nm (e.g. 378:8).
+    #[arg(long, value_parser = parse_wavelengths)]
+    pub wavelengths: Option<(f64, f64)>,
     /// Smoothness weight λ (applied exactly).
     #[arg(long, default_value_t = 0.01)]
     pub lambda: f64,

@@ -2,7 +2,7 @@
 //! written, and clear errors (never a panic) on bad input.
 
 use anaglyph_core::builtin;
-use anaglyph_core::io::{read_npy_f64, write_npy_f32, write_npy_f64};
+use anaglyph_core::io::{read_envi, read_npy_f64, write_npy_f32, write_npy_f64};
 use anaglyph_core::spectrum::ResponseCurve;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -130,6 +130,48 @@ fn demux_recovers_spectra_from_npy_and_keeps_f32() {
         );
         assert!(o.status.success(), "{solver}: {}", stderr(&o));
     }
+}
+
+#[test]
+fn demux_writes_an_envi_cube_with_wavelengths() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = vec![1.0, 0.0, 0.0, 1.0, 0.5, 0.5];
+    write_npy_f64(&dir.path().join("C.npy"), &[3, 2], c).unwrap();
+    // 2 × 3 pixels of s = (0.25, 0.75): P = (0.25, 0.75, 0.5).
+    let p: Vec<f64> = (0..6).flat_map(|_| [0.25, 0.75, 0.5]).collect();
+    write_npy_f64(&dir.path().join("P.npy"), &[2, 3, 3], p).unwrap();
+    let args = [
+        "demux",
+        "--sensing",
+        "C.npy",
+        "--measurements",
+        "P.npy",
+        "--out",
+        "S.hdr",
+        "--lambda",
+        "0",
+        "--wavelengths",
+        "500:10",
+    ];
+    let o = anaglyph(&args, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cube = read_envi(&dir.path().join("S.hdr")).unwrap();
+    assert_eq!((cube.width, cube.height, cube.bands), (3, 2, 2));
+    assert_eq!(cube.wavelengths, Some(vec![500.0, 510.0]));
+    assert!((cube.at(2, 1, 0) - 0.25).abs() < 1e-6 && (cube.at(2, 1, 1) - 0.75).abs() < 1e-6);
+    let flat = [
+        "demux",
+        "--sensing",
+        "C.npy",
+        "--measurements",
+        "C.npy",
+        "--out",
+        "X.hdr",
+    ];
+    assert_clean_failure(
+        &anaglyph(&flat, dir.path()),
+        "ENVI output needs P of shape H × W",
+    );
 }
 
 #[test]

@@ -133,6 +133,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         noise: CameraNoise::default(),
         lambda: 0.01,
         keep: 3,
+        exhaustive_limit: anaglyph_core::filters::EXHAUSTIVE_LIMIT,
     };
     let (selection, seconds) = run_selection(&inputs, &options, OutOfBand::Extend)?;
     print_report(&selection, seconds);

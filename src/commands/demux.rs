@@ -5,7 +5,8 @@ use crate::cli::DemuxArgs;
 use crate::progress::spinner;
 use anaglyph_core::demux::{demultiplex_as, DemuxOptions, DemuxReport, Sample};
 use anaglyph_core::io::{
-    read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32, write_npy_f64, FloatArray,
+    read_npy_bool, read_npy_f64, read_npy_float, write_envi, write_npy_f32, write_npy_f64,
+    EnviCube, FloatArray,
 };
 use anaglyph_core::rig::{condition_from_singular_values, ILL_CONDITIONED_WARNING};
 use anyhow::{bail, Context};
@@ -73,6 +74,22 @@ fn read_sensing(path: &Path) -> anyhow::Result<(usize, usize, Vec<f64>)> {
     }
 }
 
+/// Writes an H × W × N float32 cube as ENVI.
+fn write_cube(args: &DemuxArgs, shape: &[usize], data: Vec<f32>) -> anyhow::Result<()> {
+    let bands = shape[2];
+    let cube = EnviCube {
+        width: shape[1],
+        height: shape[0],
+        bands,
+        wavelengths: args
+            .wavelengths
+            .map(|(start, step)| (0..bands).map(|b| start + step * b as f64).collect()),
+        data,
+    };
+    write_envi(&args.out, &cube, "anaglyph demux spectra")?;
+    Ok(())
+}
+
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let (rows, n, c) = read_sensing(&args.sensing)?;
@@ -122,6 +139,19 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
         tolerance: args.tolerance,
         ..DemuxOptions::default()
     };
+    let envi = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
+    if envi && shape_in.len() != 3 {
+        bail!(
+            "an ENVI output needs P of shape H × W × {rows}, got {:?}",
+            shape_in
+        );
+    }
+    if args.wavelengths.is_some() && !envi {
+        bail!("--wavelengths only applies to an ENVI (.hdr) output");
+    }
     let pixels = shape_in.iter().product::<usize>() / rows;
     let mut shape = shape_in.clone();
     if let Some(last) = shape.last_mut() {
@@ -147,7 +177,11 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
             drop(a);
             bar.finish_and_clear();
             let save_start = Instant::now();
-            write_npy_f32(&args.out, &shape, s)?;
+            if envi {
+                write_cube(&args, &shape, s)?;
+            } else {
+                write_npy_f32(&args.out, &shape, s)?;
+            }
             (report, solved, save_start)
         }
         FloatArray::F64(a) => {
@@ -155,7 +189,11 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
             drop(a);
             bar.finish_and_clear();
             let save_start = Instant::now();
-            write_npy_f64(&args.out, &shape, s)?;
+            if envi {
+                write_cube(&args, &shape, s.iter().map(|&v| v as f32).collect())?;
+            } else {
+                write_npy_f64(&args.out, &shape, s)?;
+            }
             (report, solved, save_start)
         }
     };

@@ -36,6 +36,7 @@ fn init(args: RigInitArgs) -> anyhow::Result<()> {
         noise: CameraNoise::default(),
         lambda: 0.01,
         keep: 3,
+        exhaustive_limit: anaglyph_core::filters::EXHAUSTIVE_LIMIT,
     };
     let (report, seconds) = run_selection(&inputs, &options, OutOfBand::Extend)?;
     print_report(&report, seconds);

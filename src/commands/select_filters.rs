@@ -127,6 +127,7 @@ pub fn run(args: SelectFiltersArgs) -> anyhow::Result<()> {
         },
         lambda: args.lambda,
         keep: args.keep,
+        exhaustive_limit: args.exhaustive_limit,
     };
     let (report, seconds) = run_selection(&inputs, &options, args.out_of_band.into())?;
     print_report(&report, seconds);

@@ -11,4 +11,5 @@ pub use calibration::{calibrate_filter, FilterCalibration};
 pub use gel_model::{gel_library, GelFilter, GelShape, GEL_LIBRARY_SHAPE};
 pub use selection::{
     select_filters, NoiseModel, SelectionCriterion, SelectionOptions, SelectionReport, SubsetScore,
+    EXHAUSTIVE_LIMIT,
 };

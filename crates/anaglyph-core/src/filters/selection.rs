@@ -44,6 +44,9 @@ pub struct SelectionOptions {
     pub lambda: f64,
     /// How many best subsets to report.
     pub keep: usize,
+    /// Search exhaustively while the number of subsets is at most this
+    /// (default [`EXHAUSTIVE_LIMIT`]); otherwise greedy selection plus swaps.
+    pub exhaustive_limit: u64,
 }
 
 /// Scores of one subset.
@@ -240,7 +243,7 @@ pub fn select_filters(
         noise: options.noise,
     };
     let total = binomial(candidates.len(), k);
-    let exhaustive = total <= EXHAUSTIVE_LIMIT;
+    let exhaustive = total <= options.exhaustive_limit;
     let mut scored: Vec<(f64, Vec<usize>)> = if exhaustive {
         combinations(candidates.len(), k)
             .into_par_iter()

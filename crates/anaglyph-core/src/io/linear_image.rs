@@ -165,6 +165,30 @@ mod tests {
     }
 
     #[test]
+    fn sixteen_bit_tiff_and_eight_bit_grey_png_are_read_linearly() {
+        let dir = tempfile::tempdir().unwrap();
+        let tiff = dir.path().join("c.tif");
+        let pixels: Vec<u16> = vec![0, 1000, 65535, 32768, 7, 9];
+        image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(2, 1, pixels.clone())
+            .unwrap()
+            .save(&tiff)
+            .unwrap();
+        let back = read_linear_image(&tiff).unwrap();
+        assert_eq!((back.channels, back.bit_depth), (3, 16));
+        for (a, &b) in back.data.iter().zip(&pixels) {
+            assert_eq!(*a, b as f32 / 65535.0);
+        }
+        let png = dir.path().join("g.png");
+        image::GrayImage::from_raw(3, 1, vec![0, 51, 255])
+            .unwrap()
+            .save(&png)
+            .unwrap();
+        let grey = read_linear_image(&png).unwrap();
+        assert_eq!((grey.channels, grey.bit_depth), (1, 8));
+        assert_eq!(grey.data, vec![0.0, 0.2, 1.0]);
+    }
+
+    #[test]
     fn garbage_is_an_error() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.png");

@@ -96,4 +96,30 @@ mod tests {
         assert!((ssim(&x, &y, w, h, 1.0) - want).abs() < 1e-12);
         assert!(ssim(&a, &a, 5, 5, 1.0).is_nan());
     }
+
+    /// Values from scikit-image 0.26.0, `structural_similarity(a, x, gaussian_weights=True,
+    /// sigma=1.5, use_sample_covariance=False, data_range=1.0)`, with this script:
+    ///
+    /// ```text
+    /// w, h = 20, 17
+    /// i = np.arange(w * h, dtype=np.float64)
+    /// a = ((i * 37) % 101) / 100.0
+    /// b = np.clip(a + 0.1 * np.sin(i / 3.0), 0, 1)
+    /// c = 0.5 * a + 0.2
+    /// ```
+    #[test]
+    fn matches_scikit_image() {
+        let (w, h) = (20, 17);
+        let a: Vec<f64> = (0..w * h)
+            .map(|i| ((i * 37) % 101) as f64 / 100.0)
+            .collect();
+        let b: Vec<f64> = a
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v + 0.1 * (i as f64 / 3.0).sin()).clamp(0.0, 1.0))
+            .collect();
+        let c: Vec<f64> = a.iter().map(|v| 0.5 * v + 0.2).collect();
+        assert!((ssim(&a, &b, w, h, 1.0) - 0.9817899177237879).abs() < 1e-12);
+        assert!((ssim(&a, &c, w, h, 1.0) - 0.7963952821925857).abs() < 1e-12);
+    }
 }
