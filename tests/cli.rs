@@ -159,12 +159,18 @@ fn demux_writes_an_envi_cube_with_wavelengths() {
     assert_eq!((cube.width, cube.height, cube.bands), (3, 2, 2));
     assert_eq!(cube.wavelengths, Some(vec![500.0, 510.0]));
     assert!((cube.at(2, 1, 0) - 0.25).abs() < 1e-6 && (cube.at(2, 1, 1) - 0.75).abs() < 1e-6);
+    write_npy_f64(
+        &dir.path().join("P2.npy"),
+        &[2, 3],
+        vec![0.25, 0.75, 0.5, 0.25, 0.75, 0.5],
+    )
+    .unwrap();
     let flat = [
         "demux",
         "--sensing",
         "C.npy",
         "--measurements",
-        "C.npy",
+        "P2.npy",
         "--out",
         "X.hdr",
     ];
