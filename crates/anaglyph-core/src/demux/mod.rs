@@ -111,10 +111,33 @@ impl DemuxReport {
 /// The float type measurements arrive in and spectra leave in (f32 or f64); all
 /// arithmetic is f64. Reading and writing the caller's own type avoids whole-image
 /// conversion copies, which cost more than the solve on large images.
-pub trait Sample: Copy + Send + Sync + 'static {
+pub trait Sample: Copy + Send + Sync + bytemuck::Pod + 'static {
     const NAN: Self;
     fn to_f64(self) -> f64;
     fn from_f64(value: f64) -> Self;
+    /// `Ŝ = P Aᵀ` for `pixels` rows of `p`, computed in this type (f32 data: f32 GEMM).
+    fn batched_product(eq: &NormalEquations, p: &[Self], pixels: usize, s_hat: &mut Vec<Self>);
+}
+
+/// `dst (pixels × n) = p (pixels × m) · a_t (m × n)`, row-major, single-threaded (the
+/// caller parallelises over chunks).
+fn product<T: faer::traits::ComplexField + Copy + bytemuck::Zeroable>(
+    p: &[T],
+    a_t: &[T],
+    pixels: usize,
+    m: usize,
+    n: usize,
+    dst: &mut Vec<T>,
+) {
+    dst.resize(pixels * n, T::zeroed());
+    faer::linalg::matmul::matmul(
+        faer::MatMut::from_row_major_slice_mut(&mut dst[..pixels * n], pixels, n),
+        faer::Accum::Replace,
+        faer::MatRef::from_row_major_slice(p, pixels, m),
+        faer::MatRef::from_row_major_slice(a_t, m, n),
+        T::one_impl(),
+        faer::Par::Seq,
+    );
 }
 
 impl Sample for f64 {
@@ -125,6 +148,9 @@ impl Sample for f64 {
     fn from_f64(value: f64) -> Self {
         value
     }
+    fn batched_product(eq: &NormalEquations, p: &[Self], pixels: usize, s_hat: &mut Vec<Self>) {
+        product(p, &eq.a_t, pixels, eq.kept_rows.len(), eq.n, s_hat);
+    }
 }
 
 impl Sample for f32 {
@@ -134,6 +160,9 @@ impl Sample for f32 {
     }
     fn from_f64(value: f64) -> Self {
         value as f32
+    }
+    fn batched_product(eq: &NormalEquations, p: &[Self], pixels: usize, s_hat: &mut Vec<Self>) {
+        product(p, &eq.a_t32, pixels, eq.kept_rows.len(), eq.n, s_hat);
     }
 }
 
@@ -222,7 +251,7 @@ pub fn demultiplex_as<I: Sample, O: Sample>(
                             .map(|&r| measurements[px * rows + r].to_f64()),
                     );
                 }
-                let mut buffers = ChunkBuffers::new(n, m);
+                let mut buffers = ChunkBuffers::<f64>::new(n, m);
                 let rep = solve_chunk(eq, &p, &mut out, &output, options, &mut buffers)?;
                 Ok((out, rep))
             })
@@ -256,22 +285,18 @@ fn solve_complete<I: Sample, O: Sample>(
     let tasks = rayon::current_num_threads() * TASKS_PER_THREAD;
     let per_task = pixels.div_ceil(tasks).div_ceil(PIXELS_PER_TASK).max(1) * PIXELS_PER_TASK;
     // Zero-initialised (calloc): pages are faulted in by the parallel writers.
-    let mut result = vec![O::from_f64(0.0); pixels * out_n];
+    let mut result = crate::io::zeroed_large::<O>(pixels * out_n);
     let mut report = result
         .par_chunks_mut(per_task * out_n)
         .zip(measurements.par_chunks(per_task * rows))
         .map(|(out, p)| {
-            let mut buffers = ChunkBuffers::new(n, rows);
+            let mut buffers = ChunkBuffers::<I>::new(n, rows);
             let mut report = DemuxReport::default();
             let chunks = out
                 .chunks_mut(PIXELS_PER_TASK * out_n)
                 .zip(p.chunks(PIXELS_PER_TASK * rows));
             for (o, pc) in chunks {
-                let mut p64 = std::mem::take(&mut buffers.p64);
-                p64.clear();
-                p64.extend(pc.iter().map(|v| v.to_f64()));
-                report = report.merge(solve_chunk(&eq, &p64, o, output, options, &mut buffers)?);
-                buffers.p64 = p64;
+                report = report.merge(solve_chunk(&eq, pc, o, output, options, &mut buffers)?);
             }
             Ok(report)
         })
@@ -359,33 +384,37 @@ fn write_spectrum<O: Sample>(dst: &mut [O], values: &[f64]) {
     }
 }
 
-/// Per-task buffers, reused across the chunks one rayon task solves.
-struct ChunkBuffers {
+/// Per-task buffers, reused across the chunks one rayon task solves; `C` is the type the
+/// batched product is computed in.
+struct ChunkBuffers<C> {
     scratch: Scratch,
     /// Unconstrained solutions of a chunk, `PIXELS_PER_TASK × n`.
-    s_hat: Vec<f64>,
-    /// A chunk's measurements converted to f64.
+    s_hat: Vec<C>,
+    /// One pixel's unconstrained solution in f64 (pivoting runs in f64).
+    hat64: Vec<f64>,
+    /// One pixel's measurements in f64 (iterative solvers).
     p64: Vec<f64>,
 }
 
-impl ChunkBuffers {
+impl<C> ChunkBuffers<C> {
     fn new(n: usize, rows: usize) -> Self {
         ChunkBuffers {
             scratch: Scratch::new(n, rows),
             s_hat: Vec::new(),
-            p64: Vec::new(),
+            hat64: vec![0.0; n],
+            p64: vec![0.0; rows],
         }
     }
 }
 
 /// Solves one chunk of pixels that share `eq`; `p` holds their kept measurements.
-fn solve_chunk<O: Sample>(
+fn solve_chunk<C: Sample, O: Sample>(
     eq: &NormalEquations,
-    p: &[f64],
+    p: &[C],
     out: &mut [O],
     output: &Range<usize>,
     options: &DemuxOptions,
-    buffers: &mut ChunkBuffers,
+    buffers: &mut ChunkBuffers<C>,
 ) -> Result<DemuxReport> {
     let n = eq.n;
     let m = eq.kept_rows.len();
@@ -395,26 +424,29 @@ fn solve_chunk<O: Sample>(
         pixels,
         ..Default::default()
     };
-    let ChunkBuffers { scratch, s_hat, .. } = buffers;
+    let ChunkBuffers {
+        scratch,
+        s_hat,
+        hat64,
+        p64,
+    } = buffers;
     if options.solver == Solver::Exact {
         // Unconstrained solutions of the whole chunk in one product: Ŝ = P Aᵀ.
-        s_hat.resize(pixels * n, 0.0);
-        faer::linalg::matmul::matmul(
-            faer::MatMut::from_row_major_slice_mut(&mut s_hat[..pixels * n], pixels, n),
-            faer::Accum::Replace,
-            faer::MatRef::from_row_major_slice(p, pixels, m),
-            faer::MatRef::from_row_major_slice(&eq.a_t, m, n),
-            1.0,
-            faer::Par::Seq,
-        );
+        C::batched_product(eq, p, pixels, s_hat);
         for px in 0..pixels {
             let hat = &s_hat[px * n..(px + 1) * n];
             let dst = &mut out[px * out_n..(px + 1) * out_n];
-            if hat.iter().all(|&v| v >= 0.0) {
-                write_spectrum(dst, &hat[output.clone()]);
+            if hat.iter().all(|&v| v.to_f64() >= 0.0) {
+                for (d, &v) in dst.iter_mut().zip(&hat[output.clone()]) {
+                    *d = O::from_f64(v.to_f64());
+                }
                 continue;
             }
             report.bounded_pixels += 1;
+            for (h, &v) in hat64.iter_mut().zip(hat) {
+                *h = v.to_f64();
+            }
+            let hat = &hat64[..];
             let Scratch {
                 free,
                 s,
@@ -445,7 +477,10 @@ fn solve_chunk<O: Sample>(
         0.0
     };
     for px in 0..pixels {
-        let pv = &p[px * m..(px + 1) * m];
+        for (d, &v) in p64.iter_mut().zip(&p[px * m..(px + 1) * m]) {
+            *d = v.to_f64();
+        }
+        let pv = &p64[..m];
         let dst = &mut out[px * out_n..(px + 1) * out_n];
         let Scratch {
             free,
@@ -507,8 +542,8 @@ fn solve_chunk<O: Sample>(
                     for i in 0..n {
                         free[i] = s[i] > 0.0;
                     }
-                    let hat_scale: Vec<f64> = s.to_vec();
-                    let (ts, ty) = tolerances(eq, &hat_scale, b, tol_rel.max(1e-8));
+                    hat64.copy_from_slice(s);
+                    let (ts, ty) = tolerances(eq, hat64, b, tol_rel.max(1e-8));
                     block_principal_pivoting(free, s, y, ts, ty, |f, s, y| {
                         inner(f, s, y, &mut iterations)
                     })?;

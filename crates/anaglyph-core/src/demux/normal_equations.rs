@@ -23,6 +23,8 @@ pub struct NormalEquations {
     pub h_inv: Vec<f64>,
     /// `Aᵀ = C_m H⁻¹`, row-major `kept × n`, so that `ŝᵀ = p_mᵀ Aᵀ` (batched product).
     pub a_t: Vec<f64>,
+    /// `Aᵀ` rounded to f32, for measurements stored as f32.
+    pub a_t32: Vec<f32>,
     pub lambda: f64,
 }
 
@@ -86,6 +88,7 @@ impl NormalEquations {
                 a_t[r * n + j] = (0..n).map(|k| c[r * n + k] * h_inv[k * n + j]).sum();
             }
         }
+        let a_t32 = a_t.iter().map(|&v| v as f32).collect();
         Ok(NormalEquations {
             n,
             kept_rows,
@@ -93,6 +96,7 @@ impl NormalEquations {
             h,
             h_inv,
             a_t,
+            a_t32,
             lambda,
         })
     }

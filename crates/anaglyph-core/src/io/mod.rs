@@ -6,12 +6,14 @@
 
 mod atomic;
 mod envi;
+mod large_buffer;
 mod linear_image;
 mod npy;
 mod pfm;
 
 pub use atomic::write_atomically;
 pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
+pub use large_buffer::zeroed_large;
 pub use linear_image::{read_linear_image, write_png16, LinearImage};
 pub use npy::{
     read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32, write_npy_f64, FloatArray, NpyArray,

@@ -26,8 +26,20 @@ enum Descriptor {
     Other,
 }
 
-/// Checks the header's shape against the file length; returns the element type.
-fn check_header(path: &Path) -> Result<Descriptor> {
+/// What a checked header declares.
+#[derive(Debug, Clone)]
+struct Header {
+    descriptor: Descriptor,
+    /// Little-endian (or single-byte) elements.
+    little_endian: bool,
+    fortran_order: bool,
+    shape: Vec<usize>,
+    /// Byte offset of the data.
+    data_offset: u64,
+}
+
+/// Checks the header's shape against the file length; returns what it declares.
+fn check_header(path: &Path) -> Result<Header> {
     use std::io::Read;
     let bad = |message: String| Error::Parse {
         context: path.display().to_string(),
@@ -85,6 +97,7 @@ fn check_header(path: &Path) -> Result<Descriptor> {
         .and_then(|s| s.split(')').next())
         .ok_or_else(|| bad("header has no shape".into()))?;
     let mut values: u64 = 1;
+    let mut shape = Vec::new();
     for dim in shape_text
         .trim()
         .trim_start_matches('(')
@@ -98,6 +111,7 @@ fn check_header(path: &Path) -> Result<Descriptor> {
             .parse()
             .map_err(|_| bad(format!("shape entry '{dim}' is not an integer")))?;
         values = values.saturating_mul(d);
+        shape.push(d as usize);
     }
     if values > MAX_RASTER_VALUES {
         return Err(Error::TooLarge {
@@ -111,7 +125,30 @@ fn check_header(path: &Path) -> Result<Descriptor> {
     if file_len != need {
         return Err(bad(format!("{file_len} bytes (header declares {need})")));
     }
-    Ok(descriptor)
+    Ok(Header {
+        descriptor,
+        little_endian: header.contains("'<") || header.contains("'|"),
+        fortran_order: header.contains("'fortran_order': True"),
+        shape,
+        data_offset: prefix + header_len,
+    })
+}
+
+/// Reads the data of a little-endian, C-order float array straight into a huge-page
+/// buffer (no ndarray intermediate).
+fn read_native<T: bytemuck::Pod + bytemuck::Zeroable>(
+    path: &Path,
+    header: &Header,
+) -> Result<Vec<T>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let len: usize = header.shape.iter().product();
+    let mut data = super::zeroed_large::<T>(len);
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    file.seek(SeekFrom::Start(header.data_offset))
+        .map_err(|e| Error::io(path, e))?;
+    file.read_exact(bytemuck::cast_slice_mut(&mut data))
+        .map_err(|e| Error::io(path, e))?;
+    Ok(data)
 }
 
 fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
@@ -156,9 +193,27 @@ impl FloatArray {
 
 /// Reads a float array (`f4` or `f8`, either byte order, C or Fortran order) in its own type.
 pub fn read_npy_float(path: &Path) -> Result<FloatArray> {
-    let descriptor = check_header(path)?;
+    let header = check_header(path)?;
+    let native = header.little_endian && !header.fortran_order && cfg!(target_endian = "little");
+    match header.descriptor {
+        Descriptor::F32 if native => {
+            return Ok(FloatArray::F32(NpyArray {
+                data: read_native(path, &header)?,
+                shape: header.shape,
+                stored_as_f32: true,
+            }))
+        }
+        Descriptor::F64 if native => {
+            return Ok(FloatArray::F64(NpyArray {
+                data: read_native(path, &header)?,
+                shape: header.shape,
+                stored_as_f32: false,
+            }))
+        }
+        _ => {}
+    }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    match descriptor {
+    match header.descriptor {
         Descriptor::F64 => {
             let a = ArrayD::<f64>::read_npy(file).map_err(|e| read_error(path, e))?;
             Ok(FloatArray::F64(into_row_major(a)))
