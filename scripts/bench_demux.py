@@ -30,7 +30,7 @@ def write_rig(path):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--pixels", type=int, default=2_000_000)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=7)
     args = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="anaglyph-bench-")
     rig, c_path = os.path.join(tmp, "rig.toml"), os.path.join(tmp, "C.npy")
@@ -53,19 +53,30 @@ def main():
     np.save(p_path, P)
     del S, P
 
+    def fresh(name):
+        # Both tools write a new file each run: replacing an existing file makes ext4 flush
+        # it to disk first, which would measure the disk rather than the tools.
+        path = os.path.join(tmp, name)
+        if os.path.exists(path):
+            os.remove(path)
+        subprocess.run(["sync"], check=True)
+        return path
+
     def ours():
+        fresh("S_ours.npy")
         t = time.perf_counter()
         out = subprocess.run([BIN, "demux", "--sensing", c_path, "--measurements", p_path,
                               "--out", os.path.join(tmp, "S_ours.npy")], check=True, capture_output=True, text=True)
         return time.perf_counter() - t, out.stdout.strip()
 
     def numpy_closed_form(lam=0.01):
+        out = fresh("S_numpy.npy")
         t = time.perf_counter()
         P = np.load(p_path)
         D = np.diff(np.eye(n), axis=0)
         A = np.linalg.solve(C.T @ C + lam * D.T @ D, C.T)
         S = (P @ A.T.astype(np.float32))
-        np.save(os.path.join(tmp, "S_numpy.npy"), S)
+        np.save(out, S)
         return time.perf_counter() - t
 
     ours_times, numpy_times, log = [], [], ""

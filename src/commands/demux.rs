@@ -5,8 +5,8 @@ use crate::cli::DemuxArgs;
 use crate::progress::spinner;
 use anaglyph_core::demux::{demultiplex_as, DemuxOptions, DemuxReport, Sample};
 use anaglyph_core::io::{
-    read_npy_bool, read_npy_f64, read_npy_float, write_envi, write_npy_f32, write_npy_f64,
-    EnviCube, FloatArray,
+    open_npy_rows, read_npy_bool, read_npy_f64, read_npy_float, write_envi, write_npy_f32,
+    write_npy_f64, EnviCube, FloatArray,
 };
 use anaglyph_core::rig::{condition_from_singular_values, ILL_CONDITIONED_WARNING};
 use anyhow::{bail, Context};
@@ -90,11 +90,34 @@ fn write_cube(args: &DemuxArgs, shape: &[usize], data: Vec<f32>) -> anyhow::Resu
     Ok(())
 }
 
+fn print_report(report: &DemuxReport) {
+    println!(
+        "{} pixels touch s >= 0, {} distinct measurement masks, {} pixels without measurements (NaN)",
+        report.bounded_pixels, report.distinct_masks, report.unmeasured_pixels
+    );
+}
+
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let (rows, n, c) = read_sensing(&args.sensing)?;
-    let p = read_npy_float(&args.measurements)?;
-    let shape_in = p.shape().to_vec();
+    let envi = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
+    let stream_reader = if envi {
+        None
+    } else {
+        open_npy_rows(&args.measurements)?
+    };
+    let shape_in = match &stream_reader {
+        Some(reader) => reader.shape.clone(),
+        None => Vec::new(),
+    };
+    let p = match stream_reader {
+        Some(_) => None,
+        None => Some(read_npy_float(&args.measurements)?),
+    };
+    let shape_in = p.as_ref().map_or(shape_in, |p| p.shape().to_vec());
     let Some(&last) = shape_in.last() else {
         bail!(
             "{}: a 0-d array holds no measurements",
@@ -157,6 +180,48 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     if let Some(last) = shape.last_mut() {
         *last = n;
     }
+    let Some(p) = p else {
+        // Native .npy in and out: stream bands through reader, solver and writer at once.
+        let Some(reader) = open_npy_rows(&args.measurements)? else {
+            bail!("{}: changed while reading", args.measurements.display());
+        };
+        let bar = spinner(format!("demultiplexing {pixels} pixels (streamed)"));
+        let streamed = Instant::now();
+        let report = if reader.stored_as_f32 {
+            super::demux_stream::stream::<f32>(
+                reader,
+                &c,
+                rows,
+                n,
+                mask.as_deref(),
+                &options,
+                &args.out,
+                "<f4",
+            )?
+        } else {
+            super::demux_stream::stream::<f64>(
+                reader,
+                &c,
+                rows,
+                n,
+                mask.as_deref(),
+                &options,
+                &args.out,
+                "<f8",
+            )?
+        };
+        bar.finish_and_clear();
+        let seconds = streamed.elapsed().as_secs_f64();
+        println!(
+            "{pixels} pixels × {rows} measurements -> {n} channels ({:?}, λ = {}): read, solve and write overlapped in {} ({:.1} Mpixel/s)",
+            args.solver,
+            args.lambda,
+            format_seconds(seconds),
+            pixels as f64 / seconds / 1e6
+        );
+        print_report(&report);
+        return Ok(());
+    };
     let bar = spinner(format!("demultiplexing {pixels} pixels"));
     // Solve and save in the input's own float type (no whole-image conversions).
     fn solve<T: Sample>(
@@ -207,9 +272,6 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
         pixels as f64 / solved / 1e6,
         format_seconds(saved)
     );
-    println!(
-        "{} pixels touch s >= 0, {} distinct measurement masks, {} pixels without measurements (NaN)",
-        report.bounded_pixels, report.distinct_masks, report.unmeasured_pixels
-    );
+    print_report(&report);
     Ok(())
 }

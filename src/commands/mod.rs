@@ -3,6 +3,7 @@
 mod calibrate_filter;
 mod demo;
 mod demux;
+mod demux_stream;
 mod rig;
 mod select_filters;
 

@@ -189,11 +189,35 @@ pub fn demultiplex_as<I: Sample, O: Sample>(
     output: Range<usize>,
     options: &DemuxOptions,
 ) -> Result<(Vec<O>, DemuxReport)> {
+    let pixels = measurements.len() / rows.max(1);
+    let mut result = crate::io::zeroed_large::<O>(pixels * output.len());
+    let report = demultiplex_into(c, rows, measurements, mask, output, options, &mut result)?;
+    Ok((result, report))
+}
+
+/// [`demultiplex_as`] into a caller's buffer of `pixels × output.len()` values, so that
+/// a streaming caller can reuse its buffers band after band.
+pub fn demultiplex_into<I: Sample, O: Sample>(
+    c: &[f64],
+    rows: usize,
+    measurements: &[I],
+    mask: Option<&[bool]>,
+    output: Range<usize>,
+    options: &DemuxOptions,
+    result: &mut [O],
+) -> Result<DemuxReport> {
     let (n, complete) = validate(c, rows, measurements, mask, &output, options)?;
-    if complete {
-        return solve_complete(c, rows, n, measurements, &output, options);
-    }
     let pixels = measurements.len() / rows;
+    if result.len() != pixels * output.len() {
+        return Err(Error::Shape {
+            op: "demultiplex output buffer".into(),
+            got: vec![result.len()],
+            expected: vec![pixels, output.len()],
+        });
+    }
+    if complete {
+        return solve_complete(c, rows, n, measurements, &output, options, result);
+    }
     let out_n = output.len();
     let key_of = |px: usize| -> u128 {
         let p = &measurements[px * rows..(px + 1) * rows];
@@ -217,7 +241,7 @@ pub fn demultiplex_as<I: Sample, O: Sample>(
             NormalEquations::new(c, n, kept, options.lambda).map(|eq| (k, eq))
         })
         .collect::<Result<_>>()?;
-    let mut result = vec![O::NAN; pixels * out_n];
+    result.fill(O::NAN);
     let mut report = DemuxReport {
         distinct_masks: systems.len(),
         ..Default::default()
@@ -266,11 +290,12 @@ pub fn demultiplex_as<I: Sample, O: Sample>(
         }
     }
     report.pixels = pixels;
-    Ok((result, report))
+    Ok(report)
 }
 
 /// Every pixel sees every measurement: one system, no gathering. Work is split into a few
 /// tasks per thread, each solving its pixels chunk by chunk with one set of buffers.
+#[allow(clippy::too_many_arguments)]
 fn solve_complete<I: Sample, O: Sample>(
     c: &[f64],
     rows: usize,
@@ -278,14 +303,13 @@ fn solve_complete<I: Sample, O: Sample>(
     measurements: &[I],
     output: &Range<usize>,
     options: &DemuxOptions,
-) -> Result<(Vec<O>, DemuxReport)> {
+    result: &mut [O],
+) -> Result<DemuxReport> {
     let pixels = measurements.len() / rows;
     let out_n = output.len();
     let eq = NormalEquations::new(c, n, (0..rows).collect(), options.lambda)?;
     let tasks = rayon::current_num_threads() * TASKS_PER_THREAD;
     let per_task = pixels.div_ceil(tasks).div_ceil(PIXELS_PER_TASK).max(1) * PIXELS_PER_TASK;
-    // Zero-initialised (calloc): pages are faulted in by the parallel writers.
-    let mut result = crate::io::zeroed_large::<O>(pixels * out_n);
     let mut report = result
         .par_chunks_mut(per_task * out_n)
         .zip(measurements.par_chunks(per_task * rows))
@@ -303,7 +327,7 @@ fn solve_complete<I: Sample, O: Sample>(
         .try_reduce(DemuxReport::default, |a, b| Ok(a.merge(b)))?;
     report.pixels = pixels;
     report.distinct_masks = 1;
-    Ok((result, report))
+    Ok(report)
 }
 
 /// Checks shapes and values; returns N and whether no measurement is missing.
@@ -347,10 +371,28 @@ fn validate<I: Sample>(
             });
         }
     }
-    if let Some(i) = measurements
-        .par_iter()
-        .position_any(|v| v.to_f64().is_infinite())
-    {
+    // One pass for both checks: the first infinite value (an error) and any NaN (missing).
+    const SCAN_BLOCK: usize = 1 << 16;
+    let (first_infinite, any_missing) = measurements
+        .par_chunks(SCAN_BLOCK)
+        .enumerate()
+        .map(|(block, values)| {
+            let mut infinite = None;
+            let mut missing = false;
+            for (i, v) in values.iter().enumerate() {
+                let v = v.to_f64();
+                missing |= v.is_nan();
+                if infinite.is_none() && v.is_infinite() {
+                    infinite = Some(block * SCAN_BLOCK + i);
+                }
+            }
+            (infinite, missing)
+        })
+        .reduce(
+            || (None, false),
+            |a, b| (a.0.min(b.0).or(a.0).or(b.0), a.1 || b.1),
+        );
+    if let Some(i) = first_infinite {
         return Err(Error::invalid(
             "measurements",
             format!(
@@ -360,8 +402,7 @@ fn validate<I: Sample>(
             ),
         ));
     }
-    let complete = !measurements.par_iter().any(|v| v.to_f64().is_nan())
-        && mask.is_none_or(|m| m.par_iter().all(|&k| k));
+    let complete = !any_missing && mask.is_none_or(|m| m.par_iter().all(|&k| k));
     if output.end > n || output.is_empty() {
         return Err(Error::invalid(
             "demultiplex",

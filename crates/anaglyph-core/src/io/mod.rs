@@ -16,7 +16,8 @@ pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
 pub use large_buffer::zeroed_large;
 pub use linear_image::{read_linear_image, write_png16, LinearImage};
 pub use npy::{
-    read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32, write_npy_f64, FloatArray, NpyArray,
+    npy_header, open_npy_rows, read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32,
+    write_npy_f64, FloatArray, NpyArray, NpyRowReader,
 };
 pub use pfm::{read_pfm, write_pfm, PfmImage};
 
