@@ -6,22 +6,12 @@
 use anaglyph_core::builtin;
 use anaglyph_core::capture::{measure_spectra, spectra_on_grid, CameraNoise};
 use anaglyph_core::demux::{demultiplex, DemuxOptions, Solver};
-use anaglyph_core::rig::{EffectiveResponses, Rig, SensingMatrix};
+use anaglyph_core::rig::{EffectiveResponses, Rig, SensingMatrix, PAPER_RIG_FILTERS};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
-const FILTERS: [&str; 8] = [
-    "gel_deep_red",
-    "gel_salmon",
-    "gel_magenta",
-    "gel_lavender",
-    "gel_violet",
-    "gel_teal",
-    "gel_yellow_green",
-    "gel_emerald",
-];
-
 fn measurements(pixels: usize) -> (SensingMatrix, Vec<f64>) {
-    let rig = Rig::from_file(Rig::paper_rig_file(&FILTERS), ".".into()).expect("paper rig");
+    let rig =
+        Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into()).expect("paper rig");
     let responses = EffectiveResponses::of_rig(&rig).expect("responses");
     let c = SensingMatrix::of_rig(&rig).expect("C");
     let mut spectra = Vec::new();

@@ -7,22 +7,13 @@ use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::evaluation::{recover_reflectances, TrialSettings};
 use anaglyph_core::filters::{select_filters, SelectionCriterion, SelectionOptions};
-use anaglyph_core::rig::{EffectiveResponses, OutOfBand, Rig, RigFile, SensingMatrix};
+use anaglyph_core::rig::{
+    EffectiveResponses, OutOfBand, Rig, RigFile, SensingMatrix, PAPER_RIG_FILTERS,
+};
 use anaglyph_core::spectrum::{Interpolation, ResponseCurve, SpectralShape};
 
-const PAPER_FILTERS: [&str; 8] = [
-    "gel_deep_red",
-    "gel_salmon",
-    "gel_magenta",
-    "gel_lavender",
-    "gel_violet",
-    "gel_teal",
-    "gel_yellow_green",
-    "gel_emerald",
-];
-
 fn paper_rig() -> Rig {
-    Rig::from_file(Rig::paper_rig_file(&PAPER_FILTERS), ".".into()).unwrap()
+    Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into()).unwrap()
 }
 
 /// Smooth test spectra defined at every wavelength (no sampling of their own).
@@ -212,7 +203,7 @@ fn noise_criterion_predicts_the_measured_error() {
     // noisy trial on the same prior measures (the trial adds the s >= 0 constraint and
     // quantisation, both small effects).
     let prior = builtin::reflectances("tcs_cfi2017_99").unwrap();
-    let candidates: Vec<ResponseCurve> = PAPER_FILTERS
+    let candidates: Vec<ResponseCurve> = PAPER_RIG_FILTERS
         .iter()
         .map(|n| builtin::filter(n).unwrap())
         .collect();

@@ -13,6 +13,20 @@ use std::path::{Path, PathBuf};
 pub const BUILTIN_PREFIX: &str = "builtin:";
 /// Largest number of rows or columns of an array.
 pub const MAX_RIG_SIDE: usize = 64;
+/// The filters `anaglyph rig init` selects for the paper's 2×4 rig from the built-in gel
+/// library by smallest cond(C) (Canon EOS 5D Mark II, CIE A), in row-major camera order.
+/// The CLI test `rig_init_then_show_writes_the_rig_plot_and_c` checks the selection still
+/// picks them.
+pub const PAPER_RIG_FILTERS: [&str; 8] = [
+    "gel_deep_red",
+    "gel_salmon",
+    "gel_magenta",
+    "gel_lavender",
+    "gel_violet",
+    "gel_teal",
+    "gel_yellow_green",
+    "gel_emerald",
+];
 /// Largest rig file read.
 const MAX_RIG_FILE_BYTES: u64 = 1 << 20;
 
