@@ -34,6 +34,11 @@ pub const REFLECTANCES: &[(&str, &str)] = embedded! {
     "rawtoaces_190_patches" => "spectra/reflectances/rawtoaces_190_patches.csv",
 };
 
+/// RGB-to-spectrum bases (Mallett & Yuksel 2019 sRGB basis).
+pub const RECOVERY: &[(&str, &str)] = embedded! {
+    "mallett2019" => "spectra/recovery/mallett2019.csv",
+};
+
 /// CIE 1931 2° colour-matching functions.
 pub const CIE_1931_CMF: &str =
     include_str!("../../../data/spectra/observers/cie_1931_2deg_cmf.csv");
@@ -97,7 +102,7 @@ pub fn filter(name: &str) -> Result<ResponseCurve> {
 
 /// Any built-in curve by name, searched in every table.
 pub fn any(name: &str) -> Result<ResponseCurve> {
-    for table in [SENSORS, ILLUMINANTS, REFLECTANCES, FILTERS] {
+    for table in [SENSORS, ILLUMINANTS, REFLECTANCES, FILTERS, RECOVERY] {
         if table.iter().any(|(k, _)| *k == name) {
             return find("curve", table, name);
         }

@@ -39,6 +39,7 @@ pub mod filters;
 pub mod io;
 pub mod metrics;
 pub mod rig;
+pub mod scene;
 pub mod spectrum;
 
 pub use error::{Error, Result};
