@@ -34,6 +34,52 @@ pub enum Command {
     CalibrateFilter(CalibrateFilterArgs),
     /// Solve Eq. 6 for every pixel of a measurement array.
     Demux(DemuxArgs),
+    /// Render a scene through a rig: captures, white boards and ground truth.
+    Simulate(SimulateArgs),
+}
+
+/// Parses `WIDTHxHEIGHT`.
+fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or("expected WIDTHxHEIGHT, e.g. 640x480")?;
+    let w: usize = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("width '{w}' is not a whole number"))?;
+    let h: usize = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("height '{h}' is not a whole number"))?;
+    if w == 0 || h == 0 {
+        return Err("width and height must be positive".into());
+    }
+    Ok((w, h))
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// A preset (tabletop, clutter, periodic), `random` (seeded by --seed) or a scene TOML file.
+    #[arg(long)]
+    pub scene: String,
+    /// The rig (default: the paper's 2×4 rig with the selected gels).
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// Image size.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: (usize, usize),
+    /// Seed of the noise, the exposures and random scenes.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Rays per pixel side (n × n per pixel).
+    #[arg(long, default_value_t = 2)]
+    pub supersampling: usize,
+    /// Render without sensor noise.
+    #[arg(long)]
+    pub noise_free: bool,
+    /// Output folder (created; files in it are replaced).
+    #[arg(long)]
+    pub out: PathBuf,
 }
 
 #[derive(Debug, clap::Args)]

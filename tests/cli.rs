@@ -349,3 +349,59 @@ fn demo_runs_and_reports_the_paper_figures() {
     assert!(json["all"]["psnr"].as_f64().unwrap() > 33.0);
     assert_eq!(json["all"]["band_psnr"].as_array().unwrap().len(), 24);
 }
+
+#[test]
+fn simulate_writes_the_documented_layout_and_rejects_bad_scenes() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = anaglyph(
+        &[
+            "simulate", "--scene", "tabletop", "--size", "96x72", "--out", "sim",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("8 views at 96×72"), "{}", stdout(&o));
+    let sim = dir.path().join("sim");
+    for name in ["r0c0", "r1c3"] {
+        for file in [
+            format!("captures/{name}.png"),
+            format!("white/{name}.png"),
+            format!("truth/{name}.hdr"),
+            format!("truth/{name}.img"),
+            format!("truth/{name}_disparity.pfm"),
+            format!("truth/{name}_depth.pfm"),
+        ] {
+            assert!(sim.join(&file).is_file(), "missing {file}");
+        }
+    }
+    let cube = read_envi(&sim.join("truth/r0c0.hdr")).unwrap();
+    assert_eq!((cube.width, cube.height, cube.bands), (96, 72, 24));
+    let rig = anaglyph_core::rig::Rig::load(&sim.join("rig.toml")).unwrap();
+    assert!(rig
+        .cameras
+        .iter()
+        .all(|c| c.image.as_ref().is_some_and(|p| p.is_file())));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sim.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["views"].as_array().unwrap().len(), 8);
+    assert_eq!(manifest["scene"]["name"], "tabletop");
+
+    std::fs::write(dir.path().join("bad.toml"), "name = 'b'\n[[object]]\nsphere = { centre_mm = [0, 0, -10], radius_mm = 5 }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n").unwrap();
+    let o = anaglyph(
+        &["simulate", "--scene", "bad.toml", "--out", "bad"],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "in front of the cameras");
+    let o = anaglyph(
+        &["simulate", "--scene", "nowhere", "--out", "x"],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "not a preset");
+    let o = anaglyph(
+        &[
+            "simulate", "--scene", "random", "--seed", "3", "--size", "0x10", "--out", "x",
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+}

@@ -6,6 +6,7 @@ mod demux;
 mod demux_stream;
 mod rig;
 mod select_filters;
+mod simulate;
 
 use crate::cli::Command;
 
@@ -17,6 +18,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::SelectFilters(args) => select_filters::run(args),
         Command::CalibrateFilter(args) => calibrate_filter::run(args),
         Command::Demux(args) => demux::run(args),
+        Command::Simulate(args) => simulate::run(args),
     }
 }
 

@@ -40,6 +40,7 @@ pub mod io;
 pub mod metrics;
 pub mod rig;
 pub mod scene;
+pub mod simulate;
 pub mod spectrum;
 
 pub use error::{Error, Result};

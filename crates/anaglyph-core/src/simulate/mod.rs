@@ -1,0 +1,16 @@
+//! The physically based simulator of a filtered camera array (stage `scene -> captures`):
+//! every view of a rig looking at a [`crate::scene::Scene`] is ray cast with supersampling,
+//! the reflectance of each pixel is kept on the 5 nm grid over the sensors' whole support,
+//! and each camera records `∫ reflectance × illuminant × filter × sensor` (Eq. 1) through
+//! the same effective responses and integration code as the sensing matrix, with shot and
+//! read noise, quantisation, clipping and a per-camera exposure. Ground truth comes out
+//! alongside: reflectance at the reconstruction bands, depth and disparity.
+//!
+//! The simulator renders on a finer (5 nm) and wider (whole support) grid than the
+//! reconstruction assumes (8 nm knots), so tests never commit the inverse crime.
+
+mod output;
+mod render;
+
+pub use output::write_simulation;
+pub use render::{render_view, RenderedView, Simulation, SimulationSettings};

@@ -1,0 +1,317 @@
+//! Ray casting one view of the array and turning its reflectances into captures.
+
+use crate::capture::CameraNoise;
+use crate::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
+use crate::scene::{PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler, UPSAMPLING_SHAPE};
+use crate::{Error, Result};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::sync::Arc;
+
+/// Largest image side rendered.
+const MAX_SIDE: usize = 16_384;
+
+/// What to render and how.
+#[derive(Debug, Clone, Serialize)]
+pub struct SimulationSettings {
+    pub width: usize,
+    pub height: usize,
+    /// Rays per pixel side (n × n stratified samples per pixel).
+    pub supersampling: usize,
+    pub seed: u64,
+    /// None: noise-free captures (for tests).
+    pub noise: Option<CameraNoise>,
+    /// Each camera's exposure is `noise.exposure × (1 − jitter·u)`, u uniform in [0, 1):
+    /// real arrays are not exposed alike, and reconstruction must calibrate from the white.
+    pub exposure_jitter: f64,
+    /// Reflectance of the white board (a calibrated white is about 0.95–0.99).
+    pub white_reflectance: f64,
+}
+
+impl Default for SimulationSettings {
+    fn default() -> Self {
+        SimulationSettings {
+            width: 640,
+            height: 480,
+            supersampling: 2,
+            seed: 0,
+            noise: Some(CameraNoise::default()),
+            exposure_jitter: 0.25,
+            white_reflectance: 0.95,
+        }
+    }
+}
+
+/// One rendered view.
+#[derive(Debug, Clone)]
+pub struct RenderedView {
+    pub row: usize,
+    pub col: usize,
+    /// Linear capture in [0, 1] of full scale, `height × width × channels`.
+    pub capture: Vec<f32>,
+    /// The white-board capture, same layout.
+    pub white: Vec<f32>,
+    pub channels: usize,
+    /// Noise-free signal in the sensing matrix's normalised units (white peak = 1).
+    pub clean: Vec<f32>,
+    /// Reflectance at the reconstruction bands, `height × width × bands`.
+    pub truth: Vec<f32>,
+    /// Depth along the optical axis, mm (+inf where no surface).
+    pub depth: Vec<f32>,
+    /// Disparity in pixels per column step (`f·b_x / depth`).
+    pub disparity: Vec<f32>,
+    pub exposure: f64,
+    pub saturated: usize,
+}
+
+/// All views of a rig, with what produced them.
+#[derive(Debug, Clone)]
+pub struct Simulation {
+    pub views: Vec<RenderedView>,
+    pub settings: SimulationSettings,
+    /// Band centres of `truth`, nm.
+    pub bands: Vec<f64>,
+}
+
+/// Renders view (row, col) of `rig` looking at `scene`.
+pub fn render_view(
+    rig: &Rig,
+    scene: &Scene,
+    camera_index: usize,
+    settings: &SimulationSettings,
+    sampler: &SpectrumSampler,
+    render_c: &SensingMatrix,
+) -> Result<RenderedView> {
+    let (w, h, ss) = (settings.width, settings.height, settings.supersampling);
+    let cam = &rig.cameras[camera_index];
+    let baseline = (
+        rig.file.baseline_mm.horizontal,
+        rig.file.baseline_mm.vertical,
+    );
+    let camera =
+        PinholeCamera::on_grid(cam.row, cam.col, baseline, rig.file.focal_length_px, (w, h));
+    let rows_of_camera: Vec<usize> = (0..render_c.rows())
+        .filter(|&r| render_c.row_labels[r].starts_with(&format!("r{}c{}:", cam.row, cam.col)))
+        .collect();
+    let channels = rows_of_camera.len();
+    let bands = rig.reconstruction_shape()?;
+    let n = UPSAMPLING_SHAPE.count;
+    // Linear interpolation weights of the band centres on the 5 nm grid.
+    let band_taps: Vec<(usize, f64)> = bands
+        .wavelengths()
+        .iter()
+        .map(|&l| {
+            let x = (l - UPSAMPLING_SHAPE.start) / UPSAMPLING_SHAPE.step;
+            let i = (x.floor() as usize).min(n - 2);
+            (i, x - i as f64)
+        })
+        .collect();
+    let nb = bands.count;
+    let mut clean = vec![0f32; w * h * channels];
+    let mut truth = vec![0f32; w * h * nb];
+    let mut depth = vec![0f32; w * h];
+    clean
+        .par_chunks_mut(w * channels)
+        .zip(truth.par_chunks_mut(w * nb))
+        .zip(depth.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((clean_row, truth_row), depth_row))| {
+            let mut acc = vec![0.0; n];
+            let mut scratch = vec![0.0; n];
+            let weight = 1.0 / (ss * ss) as f64;
+            for x in 0..w {
+                acc.fill(0.0);
+                for j in 0..ss {
+                    for i in 0..ss {
+                        let ray = camera.ray(
+                            x as f64 + (i as f64 + 0.5) / ss as f64,
+                            y as f64 + (j as f64 + 0.5) / ss as f64,
+                        );
+                        if let Some((object, hit)) = scene.trace(&ray) {
+                            sampler.accumulate(
+                                &scene.objects[object].material,
+                                hit.u,
+                                hit.v,
+                                weight,
+                                &mut acc,
+                                &mut scratch,
+                            );
+                        }
+                    }
+                }
+                for (k, &r) in rows_of_camera.iter().enumerate() {
+                    clean_row[x * channels + k] = render_c
+                        .row(r)
+                        .iter()
+                        .zip(&acc)
+                        .map(|(c, s)| c * s)
+                        .sum::<f64>() as f32;
+                }
+                for (b, &(i, f)) in band_taps.iter().enumerate() {
+                    truth_row[x * nb + b] = (acc[i] * (1.0 - f) + acc[i + 1] * f) as f32;
+                }
+                let centre = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
+                depth_row[x] = match scene.trace(&centre) {
+                    Some((_, hit)) => (centre.direction.z * hit.t) as f32,
+                    None => f32::INFINITY,
+                };
+            }
+        });
+    let disparity: Vec<f32> = depth
+        .iter()
+        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64) as f32)
+        .collect();
+
+    // Exposure of this camera and its noisy captures.
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(settings.seed ^ (camera_index as u64).wrapping_mul(0x9E37_79B9));
+    let jitter: f64 = rng.random();
+    let white_signal: Vec<f64> = rows_of_camera
+        .iter()
+        .map(|&r| settings.white_reflectance * render_c.row(r).iter().sum::<f64>())
+        .collect();
+    let (capture, white, exposure, saturated) = match settings.noise {
+        Some(noise) => {
+            let exposure = noise.exposure * (1.0 - settings.exposure_jitter * jitter);
+            let camera_noise = CameraNoise { exposure, ..noise };
+            let noisy = camera_noise.apply(
+                &clean.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+                rng.random(),
+            );
+            let whites: Vec<f64> = white_signal
+                .iter()
+                .copied()
+                .cycle()
+                .take(w * h * channels)
+                .collect();
+            let white = camera_noise.apply(&whites, rng.random());
+            let to_capture = |v: &[f64]| {
+                v.iter()
+                    .map(|&p| (p * exposure).clamp(0.0, 1.0) as f32)
+                    .collect::<Vec<f32>>()
+            };
+            (
+                to_capture(&noisy.values),
+                to_capture(&white.values),
+                exposure,
+                noisy.saturated.iter().filter(|s| **s).count(),
+            )
+        }
+        None => {
+            let exposure = 0.9;
+            let white: Vec<f32> = white_signal
+                .iter()
+                .copied()
+                .cycle()
+                .take(w * h * channels)
+                .map(|v| (v * exposure) as f32)
+                .collect();
+            (
+                clean
+                    .iter()
+                    .map(|&v| (v as f64 * exposure).min(1.0) as f32)
+                    .collect(),
+                white,
+                exposure,
+                0,
+            )
+        }
+    };
+    Ok(RenderedView {
+        row: cam.row,
+        col: cam.col,
+        capture,
+        white,
+        channels,
+        clean,
+        truth,
+        depth,
+        disparity,
+        exposure,
+        saturated,
+    })
+}
+
+impl Simulation {
+    /// Renders every view of `rig` looking at `scene`.
+    pub fn run(rig: &Rig, scene: &Scene, settings: SimulationSettings) -> Result<Self> {
+        if settings.width == 0
+            || settings.height == 0
+            || settings.width > MAX_SIDE
+            || settings.height > MAX_SIDE
+        {
+            return Err(Error::invalid(
+                "simulation",
+                format!(
+                    "size {}x{} (expected 1 to {MAX_SIDE} per side)",
+                    settings.width, settings.height
+                ),
+            ));
+        }
+        if !(1..=8).contains(&settings.supersampling) {
+            return Err(Error::invalid(
+                "simulation",
+                format!("supersampling {} (expected 1 to 8)", settings.supersampling),
+            ));
+        }
+        let white_ok = settings.white_reflectance > 0.0 && settings.white_reflectance <= 1.0;
+        if !white_ok || !(0.0..1.0).contains(&settings.exposure_jitter) {
+            return Err(Error::invalid(
+                "simulation",
+                "white reflectance must be in (0, 1] and exposure jitter in [0, 1)",
+            ));
+        }
+        let responses = EffectiveResponses::of_rig(rig)?;
+        let (lo, hi) = (responses.grid.start, responses.grid.end());
+        if lo < UPSAMPLING_SHAPE.start - 1e-9 || hi > UPSAMPLING_SHAPE.end() + 1e-9 {
+            return Err(Error::invalid(
+                "simulation",
+                format!(
+                    "sensor support {lo}–{hi} nm exceeds the scene spectra's {}–{} nm",
+                    UPSAMPLING_SHAPE.start,
+                    UPSAMPLING_SHAPE.end()
+                ),
+            ));
+        }
+        // The render matrix: 5 nm knots over the support, same normalisation as C.
+        let knots = crate::spectrum::SpectralShape::from_range(
+            UPSAMPLING_SHAPE.start.max((lo / 5.0).ceil() * 5.0),
+            UPSAMPLING_SHAPE.end().min((hi / 5.0).floor() * 5.0),
+            5.0,
+        )?;
+        let render_c = SensingMatrix::from_responses(&responses, knots, OutOfBand::Extend)?;
+        let render_c = embed_in_upsampling_grid(render_c)?;
+        let sampler = SpectrumSampler {
+            upsampler: Arc::new(SpectralUpsampler::new()?),
+        };
+        let views = (0..rig.cameras.len())
+            .map(|m| render_view(rig, scene, m, &settings, &sampler, &render_c))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Simulation {
+            views,
+            settings,
+            bands: rig.reconstruction_shape()?.wavelengths(),
+        })
+    }
+}
+
+/// Pads a render matrix on `knots` (a sub-range of the 5 nm grid, extended by at most a
+/// knot at each end) to the full [`UPSAMPLING_SHAPE`] columns.
+fn embed_in_upsampling_grid(c: SensingMatrix) -> Result<SensingMatrix> {
+    let n = UPSAMPLING_SHAPE.count;
+    let offset =
+        ((c.unknowns.start - UPSAMPLING_SHAPE.start) / UPSAMPLING_SHAPE.step).round() as i64;
+    let mut values = vec![0.0; c.rows() * n];
+    for r in 0..c.rows() {
+        for (j, v) in c.row(r).iter().enumerate() {
+            let k = (offset + j as i64).clamp(0, n as i64 - 1) as usize;
+            values[r * n + k] += v;
+        }
+    }
+    let mut padded = SensingMatrix::from_dense(c.rows(), UPSAMPLING_SHAPE, values)?;
+    padded.row_scale = c.row_scale.clone();
+    padded.row_labels = c.row_labels.clone();
+    Ok(padded)
+}
