@@ -117,3 +117,91 @@ pub fn recover_reflectances(
         truth,
     })
 }
+
+/// Relative depth difference under which two views see the same surface.
+const SAME_SURFACE_DEPTH: f32 = 0.005;
+
+/// The measurements of view (row, col) of a simulation gathered from every camera with the
+/// simulator's **true** disparity and visibility (an oracle registration: the upper bound a
+/// real matcher can reach), normalised by each camera's white board into C's units
+/// (`white_response[r]` = C·w for the board's reflectance w). Occluded measurements are
+/// NaN. Returns `pixels × rows`.
+pub fn oracle_measurements(
+    simulation: &crate::simulate::Simulation,
+    baseline_ratio: f64,
+    reference: (usize, usize),
+    white_response: &[f64],
+) -> Vec<f64> {
+    let (w, h) = (simulation.settings.width, simulation.settings.height);
+    let Some(reference_view) = simulation
+        .views
+        .iter()
+        .find(|v| (v.row, v.col) == reference)
+    else {
+        return Vec::new();
+    };
+    let rows: usize = simulation.views.iter().map(|v| v.channels).sum();
+    let mut p = vec![f64::NAN; w * h * rows];
+    let mut first_row = 0;
+    for view in &simulation.views {
+        let ch = view.channels;
+        // The white board is uniform: its mean per channel is the camera's gain.
+        let white: Vec<f64> = (0..ch)
+            .map(|c| {
+                view.white
+                    .iter()
+                    .skip(c)
+                    .step_by(ch)
+                    .map(|&v| v as f64)
+                    .sum::<f64>()
+                    / (w * h) as f64
+            })
+            .collect();
+        let (dc, dr) = (
+            view.col as f64 - reference.1 as f64,
+            view.row as f64 - reference.0 as f64,
+        );
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let d = reference_view.disparity[i] as f64;
+                let z = reference_view.depth[i];
+                if dc == 0.0 && dr == 0.0 {
+                    // The view itself: its own pixel, no resampling.
+                    for c in 0..ch {
+                        p[i * rows + first_row + c] = view.capture[i * ch + c] as f64 / white[c]
+                            * white_response[first_row + c];
+                    }
+                    continue;
+                }
+                let (sx, sy) = (x as f64 - dc * d, y as f64 - dr * d * baseline_ratio);
+                let (x0, y0) = (sx.floor(), sy.floor());
+                if x0 < 0.0 || y0 < 0.0 || x0 as usize + 1 >= w || y0 as usize + 1 >= h {
+                    continue;
+                }
+                let (x0, y0, fx, fy) = (x0 as usize, y0 as usize, sx - x0, sy - y0);
+                let taps = [
+                    (x0, y0, (1.0 - fx) * (1.0 - fy)),
+                    (x0 + 1, y0, fx * (1.0 - fy)),
+                    (x0, y0 + 1, (1.0 - fx) * fy),
+                    (x0 + 1, y0 + 1, fx * fy),
+                ];
+                let visible = taps.iter().all(|&(tx, ty, _)| {
+                    ((view.depth[ty * w + tx] - z) / z).abs() < SAME_SURFACE_DEPTH
+                });
+                if !visible {
+                    continue;
+                }
+                for c in 0..ch {
+                    let value: f64 = taps
+                        .iter()
+                        .map(|&(tx, ty, k)| k * view.capture[(ty * w + tx) * ch + c] as f64)
+                        .sum();
+                    p[i * rows + first_row + c] = value / white[c] * white_response[first_row + c];
+                }
+            }
+        }
+        first_row += ch;
+    }
+    p
+}

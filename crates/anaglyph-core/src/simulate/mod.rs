@@ -9,8 +9,10 @@
 //! The simulator renders on a finer (5 nm) and wider (whole support) grid than the
 //! reconstruction assumes (8 nm knots), so tests never commit the inverse crime.
 
+mod contact_sheet;
 mod output;
 mod render;
 
+pub use contact_sheet::write_contact_sheet;
 pub use output::write_simulation;
 pub use render::{render_view, RenderedView, Simulation, SimulationSettings};

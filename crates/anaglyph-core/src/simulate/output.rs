@@ -9,6 +9,7 @@
 //! DIR/truth/r{row}c{col}_disparity.pfm  disparity per column step (Middlebury sign)
 //! DIR/truth/r{row}c{col}_depth.pfm      depth along the optical axis, mm
 //! DIR/manifest.json                     scene, seed, rig, noise, exposures, files
+//! DIR/contact_sheet.png                 8-bit sRGB preview of all captures on the grid
 //! ```
 
 use super::Simulation;
@@ -162,10 +163,17 @@ pub fn write_simulation(
     let json = serde_json::to_string_pretty(&manifest)
         .map_err(|e| Error::invalid("manifest", e.to_string()))?;
     write_atomically(&dir.join("manifest.json"), |w| w.write_all(json.as_bytes()))?;
+    super::write_contact_sheet(
+        &dir.join("contact_sheet.png"),
+        simulation,
+        rig.file.rows,
+        rig.file.cols,
+    )?;
     files.extend([
         dir.join("rig.toml"),
         dir.join("scene.toml"),
         dir.join("manifest.json"),
+        dir.join("contact_sheet.png"),
     ]);
     Ok(files)
 }
