@@ -38,6 +38,29 @@ pub enum Command {
     Simulate(SimulateArgs),
 }
 
+/// Parses `DEG,MM`.
+fn parse_pose_jitter(text: &str) -> Result<(f64, f64), String> {
+    let (a, b) = text.split_once(',').ok_or("expected DEG,MM, e.g. 0.5,1")?;
+    let deg: f64 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{a}' is not a number"))?;
+    let mm: f64 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{b}' is not a number"))?;
+    if !(deg.is_finite()
+        && mm.is_finite()
+        && (0.0..=10.0).contains(&deg)
+        && (0.0..=100.0).contains(&mm))
+    {
+        return Err(format!(
+            "{deg} degrees, {mm} mm (expected 0–10 degrees and 0–100 mm)"
+        ));
+    }
+    Ok((deg, mm))
+}
+
 /// Parses `WIDTHxHEIGHT`.
 fn parse_size(text: &str) -> Result<(usize, usize), String> {
     let (w, h) = text
@@ -77,6 +100,10 @@ pub struct SimulateArgs {
     /// Render without sensor noise.
     #[arg(long)]
     pub noise_free: bool,
+    /// Perturb each camera by random rotations and offsets up to DEG,MM (captures only; the
+    /// truth stays rectified; poses go to DIR/calibration/).
+    #[arg(long, value_parser = parse_pose_jitter)]
+    pub pose_jitter: Option<(f64, f64)>,
     /// Output folder (created; files in it are replaced).
     #[arg(long)]
     pub out: PathBuf,

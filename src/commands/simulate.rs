@@ -5,7 +5,7 @@ use crate::cli::SimulateArgs;
 use crate::progress::spinner;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{random_scene, Scene, SceneFile, PRESETS};
-use anaglyph_core::simulate::{write_simulation, Simulation, SimulationSettings};
+use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
 use std::path::Path;
 use std::time::Instant;
 
@@ -51,6 +51,12 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     if args.noise_free {
         settings.noise = None;
     }
+    settings.pose_jitter = args
+        .pose_jitter
+        .map(|(rotation_deg, offset_mm)| PoseJitter {
+            rotation_deg,
+            offset_mm,
+        });
     let bar = spinner(format!(
         "rendering {} views of '{}' at {}×{}",
         rig.cameras.len(),

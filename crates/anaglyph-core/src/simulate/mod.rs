@@ -15,4 +15,4 @@ mod render;
 
 pub use contact_sheet::write_contact_sheet;
 pub use output::write_simulation;
-pub use render::{render_view, RenderedView, Simulation, SimulationSettings};
+pub use render::{render_view, PoseJitter, RenderedView, Simulation, SimulationSettings};

@@ -2,7 +2,10 @@
 
 use crate::capture::CameraNoise;
 use crate::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
-use crate::scene::{PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler, UPSAMPLING_SHAPE};
+use crate::scene::{
+    rotate, rotation, PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler, Vec3,
+    UPSAMPLING_SHAPE,
+};
 use crate::{Error, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -28,6 +31,18 @@ pub struct SimulationSettings {
     pub exposure_jitter: f64,
     /// Reflectance of the white board (a calibrated white is about 0.95–0.99).
     pub white_reflectance: f64,
+    /// Small random camera rotations and offsets (None: a perfectly rectified array).
+    pub pose_jitter: Option<PoseJitter>,
+}
+
+/// Bounds of the random pose error of each camera (uniform in ±bound, seeded). Captures
+/// are taken by the perturbed cameras; the truth stays that of the ideal rectified array.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PoseJitter {
+    /// Per Euler angle, degrees.
+    pub rotation_deg: f64,
+    /// Per axis, mm.
+    pub offset_mm: f64,
 }
 
 impl Default for SimulationSettings {
@@ -40,6 +55,7 @@ impl Default for SimulationSettings {
             noise: Some(CameraNoise::default()),
             exposure_jitter: 0.25,
             white_reflectance: 0.95,
+            pose_jitter: None,
         }
     }
 }
@@ -64,6 +80,9 @@ pub struct RenderedView {
     pub disparity: Vec<f32>,
     pub exposure: f64,
     pub saturated: usize,
+    /// The camera that took `capture` and `white` (perturbed when poses are jittered);
+    /// truth, depth and disparity belong to the ideal rectified camera.
+    pub camera: PinholeCamera,
 }
 
 /// All views of a rig, with what produced them.
@@ -84,7 +103,7 @@ pub fn render_view(
     sampler: &SpectrumSampler,
     render_c: &SensingMatrix,
 ) -> Result<RenderedView> {
-    let (w, h, ss) = (settings.width, settings.height, settings.supersampling);
+    let (w, h) = (settings.width, settings.height);
     let cam = &rig.cameras[camera_index];
     let baseline = (
         rig.file.baseline_mm.horizontal,
@@ -109,56 +128,51 @@ pub fn render_view(
         })
         .collect();
     let nb = bands.count;
-    let mut clean = vec![0f32; w * h * channels];
-    let mut truth = vec![0f32; w * h * nb];
-    let mut depth = vec![0f32; w * h];
-    clean
-        .par_chunks_mut(w * channels)
-        .zip(truth.par_chunks_mut(w * nb))
-        .zip(depth.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, ((clean_row, truth_row), depth_row))| {
-            let mut acc = vec![0.0; n];
-            let mut scratch = vec![0.0; n];
-            let weight = 1.0 / (ss * ss) as f64;
-            for x in 0..w {
-                acc.fill(0.0);
-                for j in 0..ss {
-                    for i in 0..ss {
-                        let ray = camera.ray(
-                            x as f64 + (i as f64 + 0.5) / ss as f64,
-                            y as f64 + (j as f64 + 0.5) / ss as f64,
-                        );
-                        if let Some((object, hit)) = scene.trace(&ray) {
-                            sampler.accumulate(
-                                &scene.objects[object].material,
-                                hit.u,
-                                hit.v,
-                                weight,
-                                &mut acc,
-                                &mut scratch,
-                            );
-                        }
-                    }
-                }
-                for (k, &r) in rows_of_camera.iter().enumerate() {
-                    clean_row[x * channels + k] = render_c
-                        .row(r)
-                        .iter()
-                        .zip(&acc)
-                        .map(|(c, s)| c * s)
-                        .sum::<f64>() as f32;
-                }
-                for (b, &(i, f)) in band_taps.iter().enumerate() {
-                    truth_row[x * nb + b] = (acc[i] * (1.0 - f) + acc[i + 1] * f) as f32;
-                }
-                let centre = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
-                depth_row[x] = match scene.trace(&centre) {
-                    Some((_, hit)) => (centre.direction.z * hit.t) as f32,
-                    None => f32::INFINITY,
-                };
-            }
-        });
+    let (clean_ideal, truth, depth) = trace_view(
+        scene,
+        &camera,
+        settings,
+        sampler,
+        render_c,
+        &rows_of_camera,
+        &band_taps,
+        nb,
+    );
+    let mut rng_pose = ChaCha8Rng::seed_from_u64(
+        settings.seed ^ 0x05EE_D0F5 ^ (camera_index as u64).wrapping_mul(0x2545_F491),
+    );
+    let (clean, capture_camera) = match settings.pose_jitter {
+        None => (clean_ideal, camera.clone()),
+        Some(jitter) => {
+            let mut u = || rng_pose.random::<f64>() * 2.0 - 1.0;
+            let angles = [
+                u() * jitter.rotation_deg,
+                u() * jitter.rotation_deg,
+                u() * jitter.rotation_deg,
+            ];
+            let offset = Vec3::new(
+                u() * jitter.offset_mm,
+                u() * jitter.offset_mm,
+                u() * jitter.offset_mm,
+            );
+            let perturbed = PinholeCamera {
+                centre: camera.centre + offset,
+                rotation: rotation(angles),
+                ..camera.clone()
+            };
+            let (clean, _, _) = trace_view(
+                scene,
+                &perturbed,
+                settings,
+                sampler,
+                render_c,
+                &rows_of_camera,
+                &band_taps,
+                nb,
+            );
+            (clean, perturbed)
+        }
+    };
     let disparity: Vec<f32> = depth
         .iter()
         .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64) as f32)
@@ -231,7 +245,78 @@ pub fn render_view(
         disparity,
         exposure,
         saturated,
+        camera: capture_camera,
     })
+}
+
+/// Casts every ray of `camera`: returns the noise-free signal (`h × w × channels`), the
+/// reflectance at the band centres (`h × w × bands`) and the depth along the optical axis.
+#[allow(clippy::too_many_arguments)]
+fn trace_view(
+    scene: &Scene,
+    camera: &PinholeCamera,
+    settings: &SimulationSettings,
+    sampler: &SpectrumSampler,
+    render_c: &SensingMatrix,
+    rows_of_camera: &[usize],
+    band_taps: &[(usize, f64)],
+    nb: usize,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (w, h, ss) = (settings.width, settings.height, settings.supersampling);
+    let channels = rows_of_camera.len();
+    let n = UPSAMPLING_SHAPE.count;
+    let axis = rotate(&camera.rotation, Vec3::new(0.0, 0.0, 1.0));
+    let mut clean = vec![0f32; w * h * channels];
+    let mut truth = vec![0f32; w * h * nb];
+    let mut depth = vec![0f32; w * h];
+    clean
+        .par_chunks_mut(w * channels)
+        .zip(truth.par_chunks_mut(w * nb))
+        .zip(depth.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((clean_row, truth_row), depth_row))| {
+            let mut acc = vec![0.0; n];
+            let mut scratch = vec![0.0; n];
+            let weight = 1.0 / (ss * ss) as f64;
+            for x in 0..w {
+                acc.fill(0.0);
+                for j in 0..ss {
+                    for i in 0..ss {
+                        let ray = camera.ray(
+                            x as f64 + (i as f64 + 0.5) / ss as f64,
+                            y as f64 + (j as f64 + 0.5) / ss as f64,
+                        );
+                        if let Some((object, hit)) = scene.trace(&ray) {
+                            sampler.accumulate(
+                                &scene.objects[object].material,
+                                hit.u,
+                                hit.v,
+                                weight,
+                                &mut acc,
+                                &mut scratch,
+                            );
+                        }
+                    }
+                }
+                for (k, &r) in rows_of_camera.iter().enumerate() {
+                    clean_row[x * channels + k] = render_c
+                        .row(r)
+                        .iter()
+                        .zip(&acc)
+                        .map(|(c, s)| c * s)
+                        .sum::<f64>() as f32;
+                }
+                for (b, &(i, f)) in band_taps.iter().enumerate() {
+                    truth_row[x * nb + b] = (acc[i] * (1.0 - f) + acc[i + 1] * f) as f32;
+                }
+                let centre = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
+                depth_row[x] = match scene.trace(&centre) {
+                    Some((_, hit)) => (centre.direction.dot(axis) * hit.t) as f32,
+                    None => f32::INFINITY,
+                };
+            }
+        });
+    (clean, truth, depth)
 }
 
 impl Simulation {
