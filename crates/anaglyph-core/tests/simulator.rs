@@ -306,3 +306,37 @@ fn every_preset_renders_without_clipping_and_with_positive_disparity() {
         }
     }
 }
+
+#[test]
+fn the_scene_light_drives_the_captures() {
+    let rig = small_rig();
+    let mut file = SceneFile::preset("tabletop").unwrap();
+    let settings = SimulationSettings {
+        width: 48,
+        height: 36,
+        noise: None,
+        ..SimulationSettings::default()
+    };
+    let tungsten = Simulation::run(
+        &rig,
+        &Scene::resolve(file.clone(), Path::new(".")).unwrap(),
+        settings.clone(),
+    )
+    .unwrap();
+    file.illuminant = Some("builtin:cie_d65".into());
+    let daylight = Simulation::run(
+        &rig,
+        &Scene::resolve(file, Path::new(".")).unwrap(),
+        settings,
+    )
+    .unwrap();
+    // Same reflectance truth, different light: the rig's C (CIE A) no longer fits the captures.
+    assert_eq!(view(&tungsten, 0, 0).truth, view(&daylight, 0, 0).truth);
+    let blue = |v: &RenderedView| {
+        v.clean.iter().skip(2).step_by(3).sum::<f32>() / v.clean.iter().step_by(3).sum::<f32>()
+    };
+    assert!(
+        blue(view(&daylight, 1, 0)) > 1.2 * blue(view(&tungsten, 1, 0)),
+        "D65 is bluer than A"
+    );
+}

@@ -348,7 +348,12 @@ impl Simulation {
                 "white reflectance must be in (0, 1] and exposure jitter in [0, 1)",
             ));
         }
-        let responses = EffectiveResponses::of_rig(rig)?;
+        // The light of the scene (default: the one the rig assumes).
+        let mut lit = rig.clone();
+        if let Some(reference) = &scene.file.illuminant {
+            lit.illuminant = Some(crate::rig::resolve_curve(reference, &rig.base_dir)?);
+        }
+        let responses = EffectiveResponses::of_rig(&lit)?;
         let (lo, hi) = (responses.grid.start, responses.grid.end());
         if lo < UPSAMPLING_SHAPE.start - 1e-9 || hi > UPSAMPLING_SHAPE.end() + 1e-9 {
             return Err(Error::invalid(
