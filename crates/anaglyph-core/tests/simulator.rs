@@ -236,7 +236,7 @@ fn true_disparity_is_exact_on_smooth_textures() {
     for (row, col) in [(0, 1), (1, 1), (0, 3)] {
         let (median, rmse) = transfer_error(&sim, &rig, row, col, 1.0);
         assert!(
-            median < 2e-4 && rmse < 1e-3,
+            median < 1e-4 && rmse < 2e-4, // measured: median 1–4e-5, RMSE 2–8e-5
             "r{row}c{col}: median {median} rmse {rmse}"
         );
     }
