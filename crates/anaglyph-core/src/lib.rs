@@ -42,5 +42,6 @@ pub mod rig;
 pub mod scene;
 pub mod simulate;
 pub mod spectrum;
+pub mod stereo;
 
 pub use error::{Error, Result};
