@@ -239,8 +239,8 @@ mod tests {
         for &(dx, dy) in &DIRECTIONS {
             let got = aggregate(&volume, &image, &image, &params, &[(dx, dy)]);
             // Plain recursion over the path, memoised by visiting order.
-            #[allow(clippy::too_many_arguments)]
             let mut want = vec![f32::NAN; w * h * dm];
+            #[allow(clippy::too_many_arguments)]
             fn l(
                 x: i64,
                 y: i64,
