@@ -371,3 +371,38 @@ fn the_scene_light_drives_the_captures() {
         "D65 is bluer than A"
     );
 }
+
+#[test]
+fn bad_simulation_settings_are_errors() {
+    let rig = small_rig();
+    let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
+    let tiny = SimulationSettings {
+        width: 8,
+        height: 6,
+        noise: None,
+        ..SimulationSettings::default()
+    };
+    for bad in [
+        SimulationSettings {
+            width: 0,
+            ..tiny.clone()
+        },
+        SimulationSettings {
+            supersampling: 0,
+            ..tiny.clone()
+        },
+        SimulationSettings {
+            white_reflectance: 1.5,
+            ..tiny.clone()
+        },
+    ] {
+        assert!(Simulation::run(&rig, &scene, bad).is_err());
+    }
+    let mut file = rig.file.clone();
+    file.reconstruction.start_nm = 360.0;
+    let outside = Rig::from_file(file, ".".into()).unwrap();
+    let err = Simulation::run(&outside, &scene, tiny)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("leave the scene spectra"), "{err}");
+}

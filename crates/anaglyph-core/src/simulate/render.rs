@@ -348,6 +348,17 @@ impl Simulation {
                 "white reflectance must be in (0, 1] and exposure jitter in [0, 1)",
             ));
         }
+        let bands = rig.reconstruction_shape()?;
+        if bands.start < UPSAMPLING_SHAPE.start || bands.end() > UPSAMPLING_SHAPE.end() {
+            return Err(Error::invalid(
+                "simulation",
+                format!(
+                    "reconstruction bands {bands} leave the scene spectra's {}–{} nm",
+                    UPSAMPLING_SHAPE.start,
+                    UPSAMPLING_SHAPE.end()
+                ),
+            ));
+        }
         // The light of the scene (default: the one the rig assumes).
         let mut lit = rig.clone();
         if let Some(reference) = &scene.file.illuminant {
