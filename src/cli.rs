@@ -36,6 +36,137 @@ pub enum Command {
     Demux(DemuxArgs),
     /// Render a scene through a rig: captures, white boards and ground truth.
     Simulate(SimulateArgs),
+    /// Train the cross-spectral matching network (MC-CNN) on simulated pairs.
+    Train(TrainArgs),
+    /// Disparity of a rectified pair (left is the reference), for any pair of filters.
+    Match(MatchArgs),
+}
+
+/// Matching cost of `anaglyph match`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MatchMethod {
+    /// Learned cross-spectral cost, MC-CNN fast (the default).
+    Mccnn,
+    /// MC-CNN accurate (needs --model: its weights are not embedded).
+    MccnnAccurate,
+    /// Census transform, 7×9 window.
+    Census,
+    /// Zero-mean normalised cross-correlation, 9×9 window.
+    Zncc,
+    /// Hirschmüller's mutual information, iterated from census disparities.
+    Mi,
+}
+
+/// Which part of a colour image is matched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ChannelChoice {
+    /// Rec. 709 luminance of RGB (grey images as they are).
+    Luminance,
+    R,
+    G,
+    B,
+}
+
+/// What the left–right stage does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LeftRightChoice {
+    Off,
+    /// Inconsistent pixels become invalid (+inf in the PFM).
+    Check,
+    /// Inconsistent pixels are filled (occlusions from the background side, mismatches
+    /// by a 16-direction median).
+    Fill,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct MatchArgs {
+    /// Left (reference) image: 8- or 16-bit PNG or TIFF, grey or RGB.
+    #[arg(long)]
+    pub left: PathBuf,
+    /// Right image, same size.
+    #[arg(long)]
+    pub right: PathBuf,
+    /// Disparities searched: [0, N); x_right = x_left − d.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=4096))]
+    pub max_disp: u64,
+    /// Output disparity (PFM; +inf where invalid).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
+    pub method: MatchMethod,
+    /// Network weights (safetensors from `anaglyph train`); default: the built-in fast model.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Colour-mapped preview PNG of the disparity.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = ChannelChoice::Luminance)]
+    pub channel: ChannelChoice,
+    /// Skip cross-based cost aggregation (only the accurate chain uses it).
+    #[arg(long)]
+    pub no_aggregation: bool,
+    /// Skip semi-global matching.
+    #[arg(long)]
+    pub no_sgm: bool,
+    /// SGM path directions.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(4..=8))]
+    pub sgm_paths: u8,
+    #[arg(long, value_enum, default_value_t = LeftRightChoice::Fill)]
+    pub left_right: LeftRightChoice,
+    /// Skip parabolic subpixel refinement.
+    #[arg(long)]
+    pub no_subpixel: bool,
+    /// Skip the 5×5 median filter.
+    #[arg(long)]
+    pub no_median: bool,
+    /// Skip the bilateral filter.
+    #[arg(long)]
+    pub no_bilateral: bool,
+    /// Winner-take-all on the raw cost: every refinement stage off.
+    #[arg(long)]
+    pub raw: bool,
+    /// Write per-stage timings and settings as JSON here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+/// Matching-network architecture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ArchitectureChoice {
+    /// 4 conv layers × 64 maps, cosine similarity (the default matcher).
+    Fast,
+    /// 4 conv layers × 112 maps, 4 FC layers × 384 units (the paper's network).
+    Accurate,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct TrainArgs {
+    #[arg(long, value_enum, default_value_t = ArchitectureChoice::Fast)]
+    pub arch: ArchitectureChoice,
+    /// Output safetensors file (written atomically, with the recipe in its metadata).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Optimisation steps.
+    #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    pub steps: u64,
+    /// Seed of initialisation, training scenes and sampling.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Triplets per step.
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u64).range(1..=65_536))]
+    pub batch: u64,
+    /// Simulated training scenes (each a pair of random gels, sensor and channels).
+    #[arg(long, default_value_t = 96, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub scenes: u64,
+    /// Peak learning rate (default: 2e-3 fast, 5e-4 accurate).
+    #[arg(long)]
+    pub learning_rate: Option<f64>,
+    /// Steps between validations.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
+    pub validate_every: u64,
+    /// Also write the validation curve as CSV here.
+    #[arg(long)]
+    pub curve: Option<PathBuf>,
 }
 
 /// Parses `DEG,MM`.

@@ -4,9 +4,11 @@ mod calibrate_filter;
 mod demo;
 mod demux;
 mod demux_stream;
+mod match_pair;
 mod rig;
 mod select_filters;
 mod simulate;
+mod train;
 
 use crate::cli::Command;
 
@@ -19,6 +21,8 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::CalibrateFilter(args) => calibrate_filter::run(args),
         Command::Demux(args) => demux::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Train(args) => train::run(args),
+        Command::Match(args) => match_pair::run(args),
     }
 }
 

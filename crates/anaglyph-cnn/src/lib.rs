@@ -1,10 +1,33 @@
 //! # anaglyph-cnn
 //!
-//! The cross-spectral matching network of anaglyph (paper section 2.2, after Zbontar &
-//! LeCun, JMLR 2016). This crate is the only one that will link candle, for training; the
-//! rest of the workspace stays light. It holds the network architectures, their
-//! published hyper-parameters and the shape arithmetic both training and inference share.
+//! Training of the cross-spectral matching network of anaglyph (paper section 2.2, after
+//! Zbontar & LeCun, JMLR 2016). This crate is the only one that links candle: it holds the
+//! architectures, the training data drawn from the simulator, the candle model and the
+//! training loop. Inference runs in `anaglyph_core::stereo` (im2col + gemm), which reads
+//! the safetensors files written here.
 
 mod architecture;
+pub mod dataset;
+pub mod model;
+pub mod train;
 
 pub use architecture::{Architecture, ArchitectureError, FC_UNITS_ACCURATE, KERNEL};
+pub use model::MatchingNet;
+pub use train::{train, TrainSettings, TrainedModel, ValidationPoint};
+
+/// Errors of training.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Candle(#[from] candle_core::Error),
+    #[error(transparent)]
+    Core(#[from] anaglyph_core::Error),
+    #[error(transparent)]
+    Architecture(#[from] ArchitectureError),
+    #[error("cannot serialise the model: {0}")]
+    Serialise(String),
+    #[error("training diverged at step {step} (loss {loss})")]
+    Diverged { step: usize, loss: f64 },
+}
+
+pub type Result<T> = std::result::Result<T, Error>;

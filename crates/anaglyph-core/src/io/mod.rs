@@ -5,6 +5,7 @@
 //! limits before it allocates.
 
 mod atomic;
+mod disparity_preview;
 mod envi;
 mod large_buffer;
 mod linear_image;
@@ -12,6 +13,7 @@ mod npy;
 mod pfm;
 
 pub use atomic::write_atomically;
+pub use disparity_preview::{ramp_colour, write_disparity_preview};
 pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
 pub use large_buffer::zeroed_large;
 pub use linear_image::{read_linear_image, write_png16, LinearImage};

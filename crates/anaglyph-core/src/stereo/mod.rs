@@ -1,18 +1,35 @@
 //! Heterogeneous stereo matching (paper section 2.2), the stage
 //! `captures -> stereo (cost -> aggregate -> sgm -> refine)`. In: a rectified pair, left as
 //! reference; out: a disparity map with the Middlebury sign (`x_right = x_left − d`,
-//! search range `[0, max_disp)`, NaN where invalid). So far the classical costs (census,
-//! ZNCC) in a common [`CostVolume`], semi-global matching, and the winner-take-all with
-//! left–right check and subpixel refinement; the learned cross-spectral cost comes next.
+//! search range `[0, max_disp)`, NaN where invalid). Costs: the learned cross-spectral
+//! MC-CNN (weights from `anaglyph-cnn`, inference here in plain Rust), census, ZNCC and
+//! mutual information, in a common [`CostVolume`]; then cross-based aggregation,
+//! semi-global matching, winner-take-all, left–right check with filling, subpixel,
+//! median and bilateral filtering, chained by [`match_pair`].
 
 mod census;
 mod cost_volume;
+mod cross_aggregation;
+mod disparity_filters;
+mod learned;
+mod matcher;
+mod mutual_information;
+mod network;
 mod refine;
 mod sgm;
 mod zncc;
 
 pub use census::census_cost_volume;
 pub use cost_volume::{CostVolume, GreyImage};
+pub use cross_aggregation::{cross_based_aggregation, CrossAggregation};
+pub use disparity_filters::{
+    bilateral_filter, classify, fill_inconsistent, median_filter, right_disparity, Bilateral,
+    Consistency,
+};
+pub use learned::{cosine_costs, learned_cost_volume, normalise_image, tower_features, FeatureMap};
+pub use matcher::{match_pair, unit_range, LeftRight, MatchOutput, MatchSettings, MatchingCost};
+pub use mutual_information::{mutual_information_cost_volume, mutual_information_table, BINS};
+pub use network::{ConvLayer, DenseLayer, MatchingNetwork, DEFAULT_FAST_WEIGHTS};
 pub use refine::{left_right_check, subpixel_disparity, winner_take_all, LEFT_RIGHT_TOLERANCE};
 pub use sgm::{semi_global_matching, SgmParameters};
 pub use zncc::zncc_cost_volume;

@@ -34,6 +34,17 @@ impl SgmParameters {
         gradient_threshold: 0.08,
         paths: 4,
     };
+    /// MC-CNN accurate on KITTI 2015; its costs (−sigmoid, in [−1, 0]) already span one
+    /// unit like ours, so the values are unchanged.
+    pub const MC_CNN_ACCURATE_KITTI: SgmParameters = SgmParameters {
+        p1: 2.3,
+        p2: 55.8,
+        q1: 3.0,
+        q2: 6.0,
+        v: 1.75,
+        gradient_threshold: 0.08,
+        paths: 4,
+    };
 }
 
 const DIRECTIONS: [(i64, i64); 8] = [
@@ -58,7 +69,9 @@ pub fn semi_global_matching(
     aggregate(volume, left, right, params, directions)
 }
 
-/// Penalties (P1, P2) at left pixel (x, y) and disparity d for the step from (px, py).
+/// Penalties (P1, P2) at left pixel (x, y) and disparity d for the step from (px, py):
+/// the plain definition, which the tests check the fast path against.
+#[cfg(test)]
 #[allow(clippy::too_many_arguments)]
 fn penalties(
     left: &GreyImage,
@@ -84,25 +97,64 @@ fn penalties(
     (p1, params.p2 / divisor)
 }
 
-/// One scan: updates `current` (this pixel's L) from `previous` (the pixel before).
+/// Whether the step into each pixel along direction (dx, dy) crosses an edge
+/// (`|I(p) − I(p − r)| ≥ D`); false where p − r is outside the image.
+fn edge_flags(image: &GreyImage, dx: i64, dy: i64, threshold: f32) -> Vec<bool> {
+    let (w, h) = (image.width as i64, image.height as i64);
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let (px, py) = (x - dx, y - dy);
+            px >= 0
+                && py >= 0
+                && px < w
+                && py < h
+                && (image.data[i as usize] - image.data[(py * w + px) as usize]).abs() >= threshold
+        })
+        .collect()
+}
+
+/// Penalty divisors `[none, one, both]` gradients.
+fn divisors(params: &SgmParameters) -> [f32; 3] {
+    [1.0, params.q1, params.q2]
+}
+
+/// One path step at pixel p: `current[d] = C(p,d) + min(...) − min_k previous[k]`, with the
+/// penalties chosen per disparity from the left edge flag and the right one at p − d.
 #[allow(clippy::too_many_arguments)]
-fn step(costs: &[f32], previous: &[f32], current: &mut [f32], p1: impl Fn(usize) -> (f32, f32)) {
+#[inline]
+fn step(
+    costs: &[f32],
+    previous: &[f32],
+    current: &mut [f32],
+    left_edge: bool,
+    right_edges: &[bool],
+    x: usize,
+    px: usize,
+    p1: f32,
+    p2: f32,
+    divisor: &[f32; 3],
+) {
     let dmax = costs.len();
     let min_prev = previous.iter().cloned().fold(f32::INFINITY, f32::min);
     for d in 0..dmax {
-        let (p1, p2) = p1(d);
-        let mut best = previous[d];
+        // The right gradient exists only where both right pixels are inside the image.
+        let right_edge = x >= d && px >= d && right_edges[x - d];
+        let k = usize::from(left_edge) + usize::from(right_edge);
+        let (p1, p2) = (p1 / divisor[k], p2 / divisor[k]);
+        let mut best = previous[d].min(min_prev + p2);
         if d > 0 {
             best = best.min(previous[d - 1] + p1);
         }
         if d + 1 < dmax {
             best = best.min(previous[d + 1] + p1);
         }
-        best = best.min(min_prev + p2);
         current[d] = costs[d] + best - min_prev;
     }
 }
 
+/// Sums the path costs of `directions` (mean over paths). Memory: the output plus two
+/// rows of path costs per direction; nothing is allocated per pixel.
 pub(crate) fn aggregate(
     volume: &CostVolume,
     left: &GreyImage,
@@ -111,85 +163,101 @@ pub(crate) fn aggregate(
     directions: &[(i64, i64)],
 ) -> CostVolume {
     let (w, h, dm) = (volume.width, volume.height, volume.max_disp);
-    let mut sum = vec![0f32; w * h * dm];
+    let mut sum = crate::io::zeroed_large(w * h * dm);
+    let divisor = divisors(params);
     for &(dx, dy) in directions {
         let vertical = dx == 0;
-        let mut lr = vec![0f32; w * h * dm];
-        // Pixels are visited so that p − r is always done before p.
-        let ys: Vec<usize> = if dy >= 0 {
-            (0..h).collect()
-        } else {
-            (0..h).rev().collect()
-        };
-        let xs: Vec<usize> = if dx >= 0 {
-            (0..w).collect()
-        } else {
-            (0..w).rev().collect()
-        };
+        let p1 = params.p1 / if vertical { params.v } else { 1.0 };
+        let p2 = params.p2;
+        let left_edges = edge_flags(left, dx, dy, params.gradient_threshold);
+        let right_edges = edge_flags(right, dx, dy, params.gradient_threshold);
         if dy == 0 {
-            lr.par_chunks_mut(w * dm).enumerate().for_each(|(y, row)| {
-                for &x in &xs {
-                    let costs = volume.pixel(x, y);
-                    let px = x as i64 - dx;
-                    if px < 0 || px >= w as i64 {
-                        row[x * dm..(x + 1) * dm].copy_from_slice(costs);
-                        continue;
-                    }
-                    let px = px as usize;
-                    let (a, b) = if px < x {
-                        row.split_at_mut(x * dm)
+            // Rows are independent: one pass per row, in parallel.
+            sum.par_chunks_mut(w * dm).enumerate().for_each_init(
+                || (vec![0f32; dm], vec![0f32; dm]),
+                |(previous, current), (y, row)| {
+                    let xs: Box<dyn Iterator<Item = usize>> = if dx > 0 {
+                        Box::new(0..w)
                     } else {
-                        let (b, a) = row.split_at_mut(px * dm);
-                        (a, b)
+                        Box::new((0..w).rev())
                     };
-                    let (previous, current) = if px < x {
-                        (&a[px * dm..(px + 1) * dm], &mut b[..dm])
-                    } else {
-                        (&a[..dm], &mut b[x * dm..(x + 1) * dm])
-                    };
-                    step(costs, previous, current, |d| {
-                        penalties(left, right, params, vertical, x, y, px, y, d)
-                    });
-                }
-            });
-        } else {
-            for &y in &ys {
-                let py = y as i64 - dy;
-                if py < 0 || py >= h as i64 {
-                    for x in 0..w {
-                        lr[(y * w + x) * dm..(y * w + x + 1) * dm]
-                            .copy_from_slice(volume.pixel(x, y));
-                    }
-                    continue;
-                }
-                let py = py as usize;
-                let (before, after) = lr.split_at_mut(y.max(py) * w * dm);
-                let (previous_row, current_row) = if py < y {
-                    (
-                        &before[py * w * dm..(py + 1) * w * dm],
-                        &mut after[..w * dm],
-                    )
-                } else {
-                    (&after[..w * dm], &mut before[y * w * dm..(y + 1) * w * dm])
-                };
-                current_row
-                    .par_chunks_mut(dm)
-                    .enumerate()
-                    .for_each(|(x, current)| {
+                    let right_row = &right_edges[y * w..(y + 1) * w];
+                    for (i, x) in xs.enumerate() {
                         let costs = volume.pixel(x, y);
-                        let px = x as i64 - dx;
-                        if px < 0 || px >= w as i64 {
+                        if i == 0 {
                             current.copy_from_slice(costs);
-                            return;
+                        } else {
+                            let px = (x as i64 - dx) as usize;
+                            step(
+                                costs,
+                                previous,
+                                current,
+                                left_edges[y * w + x],
+                                right_row,
+                                x,
+                                px,
+                                p1,
+                                p2,
+                                &divisor,
+                            );
                         }
-                        let px = px as usize;
-                        step(costs, &previous_row[px * dm..(px + 1) * dm], current, |d| {
-                            penalties(left, right, params, vertical, x, y, px, py, d)
-                        });
+                        for (s, c) in row[x * dm..(x + 1) * dm].iter_mut().zip(current.iter()) {
+                            *s += c;
+                        }
+                        std::mem::swap(previous, current);
+                    }
+                },
+            );
+        } else {
+            // Each row depends on the previous one along the path: rows in order, the
+            // pixels of a row in parallel.
+            let mut previous_row = vec![0f32; w * dm];
+            let mut current_row = vec![0f32; w * dm];
+            let ys: Vec<usize> = if dy > 0 {
+                (0..h).collect()
+            } else {
+                (0..h).rev().collect()
+            };
+            for (i, &y) in ys.iter().enumerate() {
+                let right_row = &right_edges[y * w..(y + 1) * w];
+                current_row
+                    .par_chunks_mut(dm * 32)
+                    .zip(sum[y * w * dm..(y + 1) * w * dm].par_chunks_mut(dm * 32))
+                    .enumerate()
+                    .for_each(|(block, (current_block, sum_block))| {
+                        for (j, (current, s)) in current_block
+                            .chunks_exact_mut(dm)
+                            .zip(sum_block.chunks_exact_mut(dm))
+                            .enumerate()
+                        {
+                            let x = block * 32 + j;
+                            let costs = volume.pixel(x, y);
+                            let px = x as i64 - dx;
+                            if i == 0 || px < 0 || px >= w as i64 {
+                                current.copy_from_slice(costs);
+                            } else {
+                                let px = px as usize;
+                                step(
+                                    costs,
+                                    &previous_row[px * dm..(px + 1) * dm],
+                                    current,
+                                    left_edges[y * w + x],
+                                    right_row,
+                                    x,
+                                    px,
+                                    p1,
+                                    p2,
+                                    &divisor,
+                                );
+                            }
+                            for (a, c) in s.iter_mut().zip(current.iter()) {
+                                *a += c;
+                            }
+                        }
                     });
+                std::mem::swap(&mut previous_row, &mut current_row);
             }
         }
-        sum.par_iter_mut().zip(&lr).for_each(|(s, l)| *s += l);
     }
     let n = directions.len() as f32;
     sum.par_iter_mut().for_each(|s| *s /= n);
@@ -227,6 +295,11 @@ mod tests {
             height: h,
             data: (0..w * h).map(|_| uniform(&mut seed)).collect(),
         };
+        let right = GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h).map(|_| uniform(&mut seed)).collect(),
+        };
         let params = SgmParameters {
             p1: 0.1,
             p2: 0.4,
@@ -237,7 +310,7 @@ mod tests {
             paths: 8,
         };
         for &(dx, dy) in &DIRECTIONS {
-            let got = aggregate(&volume, &image, &image, &params, &[(dx, dy)]);
+            let got = aggregate(&volume, &image, &right, &params, &[(dx, dy)]);
             // Plain recursion over the path, memoised by visiting order.
             let mut want = vec![f32::NAN; w * h * dm];
             #[allow(clippy::too_many_arguments)]
@@ -248,6 +321,7 @@ mod tests {
                 dir: (i64, i64),
                 v: &CostVolume,
                 img: &GreyImage,
+                right: &GreyImage,
                 p: &SgmParameters,
                 memo: &mut Vec<f32>,
             ) -> f32 {
@@ -262,11 +336,11 @@ mod tests {
                     c
                 } else {
                     let prev: Vec<f32> = (0..dm)
-                        .map(|k| l(px, py, k, dir, v, img, p, memo))
+                        .map(|k| l(px, py, k, dir, v, img, right, p, memo))
                         .collect();
                     let (p1, p2) = penalties(
                         img,
-                        img,
+                        right,
                         p,
                         dir.0 == 0,
                         x as usize,
@@ -298,6 +372,7 @@ mod tests {
                             (dx, dy),
                             &volume,
                             &image,
+                            &right,
                             &params,
                             &mut want,
                         );

@@ -1,0 +1,152 @@
+//! The candle model and the plain-Rust inference path agree; a few training steps run,
+//! lower the loss, and write weights the inference path reads.
+
+use anaglyph_cnn::dataset::{sample_triplets, simulated_pair, Augmentation, PairSettings, PATCH};
+use anaglyph_cnn::train::to_inference;
+use anaglyph_cnn::{train, Architecture, MatchingNet, TrainSettings};
+use anaglyph_core::stereo::{learned_cost_volume, tower_features, GreyImage, MatchingNetwork};
+use candle_core::{Device, Tensor};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn random_image(w: usize, h: usize, seed: u64) -> GreyImage {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    GreyImage {
+        width: w,
+        height: h,
+        data: (0..w * h).map(|_| rng.random::<f32>()).collect(),
+    }
+}
+
+/// Small architectures keep the test fast; the code paths are those of the full ones.
+const SMALL_FAST: Architecture = Architecture::Fast {
+    conv_layers: 4,
+    feature_maps: 16,
+};
+const SMALL_ACCURATE: Architecture = Architecture::Accurate {
+    conv_layers: 4,
+    feature_maps: 12,
+    fc_layers: 3,
+    fc_units: 24,
+};
+
+#[test]
+fn candle_and_the_gemm_inference_path_agree() {
+    let (w, h) = (23, 17);
+    let image = random_image(w, h, 1);
+    let normalised = anaglyph_core::stereo::normalise_image(&image);
+    for arch in [SMALL_FAST, SMALL_ACCURATE] {
+        let net = MatchingNet::new(arch, &Device::Cpu).unwrap();
+        let ours = tower_features(&to_inference(&net).unwrap(), &image);
+        let input = Tensor::from_vec(normalised.data.clone(), (1, 1, h, w), &Device::Cpu).unwrap();
+        // [1, maps, h, w] -> per pixel vectors.
+        let theirs = net.tower(&input, true).unwrap().squeeze(0).unwrap();
+        let maps = arch.feature_maps();
+        let theirs: Vec<f32> = theirs
+            .permute((1, 2, 0))
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        assert_eq!(ours.channels, maps);
+        let mut worst = 0f32;
+        for (p, pixel) in theirs.chunks_exact(maps).enumerate() {
+            let reference: Vec<f32> = if matches!(arch, Architecture::Fast { .. }) {
+                let norm = pixel.iter().map(|v| v * v).sum::<f32>().sqrt();
+                pixel.iter().map(|v| v / norm).collect()
+            } else {
+                pixel.to_vec()
+            };
+            for (a, b) in ours.data[p * maps..(p + 1) * maps].iter().zip(&reference) {
+                worst = worst.max((a - b).abs());
+            }
+        }
+        assert!(worst < 1e-4, "{arch:?}: worst feature difference {worst}");
+    }
+}
+
+#[test]
+fn accurate_costs_equal_the_candle_head_on_patches() {
+    // Cost of (x, d) = 1 − sigmoid(head(f_L(x), f_R(x − d))): compare a few entries.
+    let (w, h) = (20, 12);
+    let (left, right) = (random_image(w, h, 2), random_image(w, h, 3));
+    let net = MatchingNet::new(SMALL_ACCURATE, &Device::Cpu).unwrap();
+    let inference = to_inference(&net).unwrap();
+    let volume = learned_cost_volume(&inference, &left, &right, 6);
+    let fl = tower_features(&inference, &left);
+    let fr = tower_features(&inference, &right);
+    for (x, y, d) in [(5, 4, 0), (9, 7, 3), (19, 11, 5), (6, 0, 2)] {
+        let a = Tensor::from_slice(fl.pixel(x, y), (1, fl.channels), &Device::Cpu).unwrap();
+        let b = Tensor::from_slice(fr.pixel(x - d, y), (1, fr.channels), &Device::Cpu).unwrap();
+        let logit: f32 = net.similarity(&a, &b).unwrap().to_vec1().unwrap()[0];
+        let want = 1.0 / (1.0 + logit.exp());
+        let got = volume.pixel(x, y)[d];
+        assert!(
+            (got - want).abs() < 1e-4,
+            "({x}, {y}, {d}): {got} vs {want}"
+        );
+    }
+}
+
+#[test]
+fn a_few_training_steps_lower_the_loss_and_save_readable_weights() {
+    let mut settings = TrainSettings::new(SMALL_FAST);
+    settings.steps = 60;
+    settings.batch = 64;
+    settings.training_scenes = 3;
+    settings.validation_scenes = 2;
+    settings.validate_every = 30;
+    settings.pairs = PairSettings {
+        width: 96,
+        height: 72,
+        homogeneous_share: 0.3,
+    };
+    let mut losses = Vec::new();
+    let model = train(&settings, |r| losses.push(r.loss)).unwrap();
+    assert_eq!(losses.len(), 60);
+    assert_eq!(model.curve.len(), 2);
+    let early: f64 = losses[..10].iter().sum::<f64>() / 10.0;
+    let late: f64 = losses[50..].iter().sum::<f64>() / 10.0;
+    assert!(late < early, "loss went from {early} to {late}");
+    let bytes = model.to_safetensors(&settings, "test").unwrap();
+    let network = MatchingNetwork::from_safetensors(&bytes, "test").unwrap();
+    assert_eq!(network.feature_maps(), 16);
+    assert_eq!(network.metadata("steps"), Some("60"));
+    assert!(!network.is_accurate());
+}
+
+#[test]
+fn triplets_put_the_positive_on_the_true_match() {
+    // Without augmentation and positive offsets, the positive patch of a homogeneous pair
+    // is much closer to the left patch than the negative one.
+    let pair = simulated_pair(
+        77,
+        &PairSettings {
+            width: 128,
+            height: 96,
+            homogeneous_share: 1.0,
+        },
+    )
+    .unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let batch = sample_triplets(
+        &[(std::slice::from_ref(&pair), 1.0)],
+        256,
+        &Augmentation::NONE,
+        &mut rng,
+    );
+    let n = PATCH * PATCH;
+    let distance = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(p, q)| (p - q).abs()).sum::<f32>();
+    let closer = (0..256)
+        .filter(|&i| {
+            let l = &batch.left[i * n..(i + 1) * n];
+            distance(l, &batch.positive[i * n..(i + 1) * n])
+                < distance(l, &batch.negative[i * n..(i + 1) * n])
+        })
+        .count();
+    assert!(
+        closer > 200,
+        "{closer} of 256 positives closer than their negatives"
+    );
+}

@@ -1,0 +1,284 @@
+//! The learned cross-spectral matching cost (paper section 2.2, MC-CNN): each image,
+//! normalised by its own mean and standard deviation, goes through the network's
+//! convolutional tower (3×3 "same" convolutions as im2col + `gemm`, in row blocks over
+//! rayon); the fast network compares the L2-normalised features by cosine similarity, the
+//! accurate one runs its fully connected layers on every (pixel, disparity) pair. The
+//! result is an ordinary [`CostVolume`] in [0, 1] for the refinement chain.
+
+use super::network::{ConvLayer, MatchingNetwork, KERNEL};
+use super::{CostVolume, GreyImage};
+use rayon::prelude::*;
+
+/// Per-pixel feature vectors, `data[(y·width + x)·channels + k]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeatureMap {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub data: Vec<f32>,
+}
+
+impl FeatureMap {
+    pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
+        let i = (y * self.width + x) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+}
+
+/// `dst = a · b` for row-major `a` (m × k), `b` (k × n), `dst` (m × n), single-threaded
+/// (callers parallelise over blocks).
+pub(crate) fn matmul(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
+    assert!(dst.len() >= m * n && a.len() >= m * k && b.len() >= k * n);
+    if m == 0 || n == 0 {
+        return;
+    }
+    // SAFETY: the assertion above keeps every access of the row-major strides in bounds,
+    // and `dst` does not alias `a` or `b` (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            a.as_ptr(),
+            1,
+            k as isize,
+            b.as_ptr(),
+            1,
+            n as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
+/// The image shifted to zero mean and scaled to unit standard deviation (MC-CNN's input
+/// normalisation); a constant image becomes all zeros.
+pub fn normalise_image(image: &GreyImage) -> GreyImage {
+    let n = image.data.len().max(1) as f64;
+    let mean = image.data.iter().map(|&v| v as f64).sum::<f64>() / n;
+    let var = image
+        .data
+        .iter()
+        .map(|&v| (v as f64 - mean).powi(2))
+        .sum::<f64>()
+        / n;
+    let scale = if var > 0.0 { 1.0 / var.sqrt() } else { 0.0 };
+    GreyImage {
+        width: image.width,
+        height: image.height,
+        data: image
+            .data
+            .iter()
+            .map(|&v| ((v as f64 - mean) * scale) as f32)
+            .collect(),
+    }
+}
+
+/// Output pixels per gemm block (a few hundred KB of im2col columns).
+const BLOCK_PIXELS: usize = 1024;
+
+/// One "same" 3×3 convolution (zero padding) plus bias, optionally rectified.
+fn convolve(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
+    let (w, h, cin, cout) = (input.width, input.height, layer.inputs, layer.outputs);
+    let k = KERNEL * KERNEL * cin;
+    let rows_per_block = (BLOCK_PIXELS / w.max(1)).max(1);
+    let mut data = vec![0f32; w * h * cout];
+    data.par_chunks_mut(rows_per_block * w * cout)
+        .enumerate()
+        .for_each_init(Vec::new, |columns: &mut Vec<f32>, (block, out)| {
+            let y0 = block * rows_per_block;
+            let pixels = out.len() / cout;
+            columns.resize(pixels * k, 0.0);
+            for (p, column) in columns.chunks_exact_mut(k).enumerate() {
+                let (x, y) = (p % w, y0 + p / w);
+                for ky in 0..KERNEL {
+                    for kx in 0..KERNEL {
+                        let slot = &mut column[(ky * KERNEL + kx) * cin..][..cin];
+                        let (yy, xx) = ((y + ky) as isize - 1, (x + kx) as isize - 1);
+                        if yy < 0 || xx < 0 || yy >= h as isize || xx >= w as isize {
+                            slot.fill(0.0);
+                        } else {
+                            slot.copy_from_slice(input.pixel(xx as usize, yy as usize));
+                        }
+                    }
+                }
+            }
+            matmul(out, columns, &layer.weight, pixels, cout, k);
+            for pixel in out.chunks_exact_mut(cout) {
+                for (v, b) in pixel.iter_mut().zip(&layer.bias) {
+                    *v += b;
+                    if relu {
+                        *v = v.max(0.0);
+                    }
+                }
+            }
+        });
+    FeatureMap {
+        width: w,
+        height: h,
+        channels: cout,
+        data,
+    }
+}
+
+/// The tower's features of an image (normalised here first). Fast networks: ReLU between
+/// layers, none after the last, then L2 normalisation; accurate networks: ReLU after
+/// every layer, no normalisation (the fully connected layers follow).
+pub fn tower_features(network: &MatchingNetwork, image: &GreyImage) -> FeatureMap {
+    let normalised = normalise_image(image);
+    let mut features = FeatureMap {
+        width: image.width,
+        height: image.height,
+        channels: 1,
+        data: normalised.data,
+    };
+    let layers = network.conv.len();
+    for (i, layer) in network.conv.iter().enumerate() {
+        let relu = i + 1 < layers || network.is_accurate();
+        features = convolve(&features, layer, relu);
+    }
+    if !network.is_accurate() {
+        features
+            .data
+            .par_chunks_mut(features.channels)
+            .for_each(|f| {
+                let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
+                if norm > 0.0 {
+                    f.iter_mut().for_each(|v| *v /= norm);
+                }
+            });
+    }
+    features
+}
+
+/// The learned cost volume of a rectified pair (left is the reference), in [0, 1]:
+/// `(1 − cos)/2` for fast networks, `1 − sigmoid(output)` for accurate ones.
+pub fn learned_cost_volume(
+    network: &MatchingNetwork,
+    left: &GreyImage,
+    right: &GreyImage,
+    max_disp: usize,
+) -> CostVolume {
+    let (fl, fr) = rayon::join(
+        || tower_features(network, left),
+        || tower_features(network, right),
+    );
+    if network.is_accurate() {
+        accurate_costs(network, &fl, &fr, max_disp)
+    } else {
+        cosine_costs(&fl, &fr, max_disp)
+    }
+}
+
+/// `(1 − fl·fr)/2` over L2-normalised features.
+pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, max_disp: usize) -> CostVolume {
+    let (w, h, c) = (fl.width, fl.height, fl.channels);
+    let mut volume = CostVolume::new(w, h, max_disp);
+    volume
+        .data
+        .par_chunks_mut(w * max_disp)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (left_row, right_row) = (&fl.data[y * w * c..][..w * c], &fr.data[y * w * c..]);
+            for x in 0..w {
+                let a = &left_row[x * c..][..c];
+                let costs = &mut row[x * max_disp..][..max_disp];
+                for (d, cost) in costs.iter_mut().enumerate().take(max_disp.min(x + 1)) {
+                    let b = &right_row[(x - d) * c..][..c];
+                    let dot: f32 = a.iter().zip(b).map(|(p, q)| p * q).sum();
+                    *cost = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
+                }
+            }
+        });
+    volume
+}
+
+/// The accurate network's fully connected head over every (pixel, disparity) pair. The
+/// first layer splits into a left and a right product computed once per pixel; the other
+/// layers are batched per row and disparity.
+fn accurate_costs(
+    network: &MatchingNetwork,
+    fl: &FeatureMap,
+    fr: &FeatureMap,
+    max_disp: usize,
+) -> CostVolume {
+    let (w, h, c) = (fl.width, fl.height, fl.channels);
+    let first = &network.dense[0];
+    let units = first.outputs;
+    let widest = network.dense.iter().map(|l| l.outputs).max().unwrap_or(1);
+    let mut volume = CostVolume::new(w, h, max_disp);
+    volume
+        .data
+        .par_chunks_mut(w * max_disp)
+        .enumerate()
+        .for_each_init(
+            || {
+                (
+                    vec![0f32; w * units],
+                    vec![0f32; w * units],
+                    vec![0f32; w * widest],
+                    vec![0f32; w * widest],
+                )
+            },
+            |(al, ar, hidden, next), (y, row)| {
+                matmul(
+                    al,
+                    &fl.data[y * w * c..][..w * c],
+                    &first.weight[..c * units],
+                    w,
+                    units,
+                    c,
+                );
+                matmul(
+                    ar,
+                    &fr.data[y * w * c..][..w * c],
+                    &first.weight[c * units..],
+                    w,
+                    units,
+                    c,
+                );
+                for d in 0..max_disp.min(w) {
+                    let m = w - d;
+                    for x in d..w {
+                        let out = &mut hidden[(x - d) * units..][..units];
+                        for (((o, a), b), bias) in out
+                            .iter_mut()
+                            .zip(&al[x * units..][..units])
+                            .zip(&ar[(x - d) * units..][..units])
+                            .zip(&first.bias)
+                        {
+                            *o = (a + b + bias).max(0.0);
+                        }
+                    }
+                    let mut width = units;
+                    for (j, layer) in network.dense.iter().enumerate().skip(1) {
+                        matmul(next, hidden, &layer.weight, m, layer.outputs, width);
+                        let last = j + 1 == network.dense.len();
+                        for pixel in next[..m * layer.outputs].chunks_exact_mut(layer.outputs) {
+                            for (v, b) in pixel.iter_mut().zip(&layer.bias) {
+                                *v += b;
+                                if !last {
+                                    *v = v.max(0.0);
+                                }
+                            }
+                        }
+                        std::mem::swap(hidden, next);
+                        width = layer.outputs;
+                    }
+                    for x in d..w {
+                        let logit = hidden[(x - d) * width];
+                        row[x * max_disp + d] = 1.0 / (1.0 + logit.exp());
+                    }
+                }
+            },
+        );
+    volume
+}

@@ -1,0 +1,288 @@
+//! The whole stereo chain for one rectified pair (paper section 2.2):
+//! `cost -> cross-based aggregation -> SGM -> cross-based aggregation -> winner-take-all
+//! -> left–right check and filling -> subpixel -> 5×5 median -> bilateral`, every stage
+//! switchable for ablation, with per-stage timings. Costs: the learned MC-CNN (fast or
+//! accurate), census, ZNCC, and mutual information (iterated from census disparities).
+
+use super::{
+    bilateral_filter, census_cost_volume, classify, cross_based_aggregation, fill_inconsistent,
+    learned_cost_volume, median_filter, mutual_information_cost_volume, normalise_image,
+    right_disparity, semi_global_matching, subpixel_disparity, winner_take_all, zncc_cost_volume,
+    Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage, MatchingNetwork,
+    SgmParameters,
+};
+use crate::{Error, Result};
+use std::time::Instant;
+
+/// A matching cost.
+#[derive(Debug, Clone, Copy)]
+pub enum MatchingCost<'a> {
+    Learned(&'a MatchingNetwork),
+    Census,
+    Zncc,
+    /// Hirschmüller's MI, `iterations` rounds starting from census + SGM disparities.
+    MutualInformation {
+        iterations: usize,
+    },
+}
+
+impl MatchingCost<'_> {
+    pub fn name(&self) -> &'static str {
+        match self {
+            MatchingCost::Learned(n) if n.is_accurate() => "mccnn-accurate",
+            MatchingCost::Learned(_) => "mccnn",
+            MatchingCost::Census => "census",
+            MatchingCost::Zncc => "zncc",
+            MatchingCost::MutualInformation { .. } => "mi",
+        }
+    }
+}
+
+/// What the left–right stage does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LeftRight {
+    Off,
+    /// Inconsistent pixels become invalid (NaN).
+    Check,
+    /// Inconsistent pixels are filled (occlusions from the left, mismatches by the
+    /// 16-direction median).
+    CheckAndFill,
+}
+
+/// Every stage's settings; `None`/`Off`/`false` switches a stage off.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchSettings {
+    pub max_disp: usize,
+    pub aggregation_before_sgm: Option<CrossAggregation>,
+    pub sgm: Option<SgmParameters>,
+    pub aggregation_after_sgm: Option<CrossAggregation>,
+    pub left_right: LeftRight,
+    pub subpixel: bool,
+    pub median: bool,
+    pub bilateral: Option<Bilateral>,
+}
+
+impl MatchSettings {
+    /// MC-CNN fast's published KITTI 2015 chain (no cross-based aggregation).
+    pub fn mc_cnn_fast(max_disp: usize) -> Self {
+        MatchSettings {
+            max_disp,
+            aggregation_before_sgm: None,
+            sgm: Some(SgmParameters::MC_CNN_FAST_KITTI),
+            aggregation_after_sgm: None,
+            left_right: LeftRight::CheckAndFill,
+            subpixel: true,
+            median: true,
+            bilateral: Some(Bilateral {
+                sigma: 4.64,
+                threshold: 5.0,
+                radius: 5,
+            }),
+        }
+    }
+
+    /// MC-CNN accurate's published KITTI 2015 chain.
+    pub fn mc_cnn_accurate(max_disp: usize) -> Self {
+        let cbca = |iterations| CrossAggregation {
+            intensity: 0.03,
+            distance: 5,
+            iterations,
+        };
+        MatchSettings {
+            aggregation_before_sgm: Some(cbca(2)),
+            sgm: Some(SgmParameters::MC_CNN_ACCURATE_KITTI),
+            aggregation_after_sgm: Some(cbca(4)),
+            bilateral: Some(Bilateral {
+                sigma: 5.99,
+                threshold: 5.0,
+                radius: 6,
+            }),
+            ..Self::mc_cnn_fast(max_disp)
+        }
+    }
+
+    /// Winner-take-all on the raw costs: every refinement stage off.
+    pub fn raw(max_disp: usize) -> Self {
+        MatchSettings {
+            max_disp,
+            aggregation_before_sgm: None,
+            sgm: None,
+            aggregation_after_sgm: None,
+            left_right: LeftRight::Off,
+            subpixel: false,
+            median: false,
+            bilateral: None,
+        }
+    }
+
+    /// The default chain for a cost.
+    pub fn for_cost(cost: &MatchingCost<'_>, max_disp: usize) -> Self {
+        match cost {
+            MatchingCost::Learned(n) if n.is_accurate() => Self::mc_cnn_accurate(max_disp),
+            _ => Self::mc_cnn_fast(max_disp),
+        }
+    }
+}
+
+/// A disparity map (NaN where invalid) with per-stage timings.
+#[derive(Debug, Clone)]
+pub struct MatchOutput {
+    pub width: usize,
+    pub height: usize,
+    pub disparity: Vec<f32>,
+    /// (stage, seconds) in the order run.
+    pub timings: Vec<(&'static str, f64)>,
+}
+
+/// The image scaled so that its 0.1 and 99.9 percentiles map to 0 and 1 (so that the
+/// intensity thresholds of SGM and aggregation do not depend on exposure).
+pub fn unit_range(image: &GreyImage) -> GreyImage {
+    let mut sorted: Vec<f32> = image
+        .data
+        .iter()
+        .cloned()
+        .filter(|v| v.is_finite())
+        .collect();
+    if sorted.is_empty() {
+        return image.clone();
+    }
+    let n = sorted.len();
+    let lo_index = n / 1000;
+    let hi_index = (n - 1 - n / 1000).max(lo_index);
+    let (_, &mut lo, _) = sorted.select_nth_unstable_by(lo_index, f32::total_cmp);
+    let (_, &mut hi, _) = sorted.select_nth_unstable_by(hi_index, f32::total_cmp);
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    GreyImage {
+        width: image.width,
+        height: image.height,
+        data: image.data.iter().map(|&v| (v - lo) / span).collect(),
+    }
+}
+
+fn validate(left: &GreyImage, right: &GreyImage, max_disp: usize) -> Result<()> {
+    if left.width != right.width || left.height != right.height {
+        return Err(Error::Shape {
+            op: "stereo matching: the right image".into(),
+            got: vec![right.width, right.height],
+            expected: vec![left.width, left.height],
+        });
+    }
+    for (name, image) in [("left", left), ("right", right)] {
+        if image.data.len() != image.width * image.height {
+            return Err(Error::Shape {
+                op: format!("stereo matching: {name} image data"),
+                got: vec![image.data.len()],
+                expected: vec![image.width * image.height],
+            });
+        }
+        if let Some(bad) = image.data.iter().find(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                format!("{name} image"),
+                format!("holds {bad}; expected finite intensities"),
+            ));
+        }
+    }
+    if left.width < 2 || left.height < 1 {
+        return Err(Error::invalid(
+            "stereo matching",
+            format!("image is {}×{}, too small", left.width, left.height),
+        ));
+    }
+    if max_disp < 2 || max_disp > left.width {
+        return Err(Error::invalid(
+            "max disparity",
+            format!("{max_disp}; expected 2 to the image width {}", left.width),
+        ));
+    }
+    Ok(())
+}
+
+/// Runs the chain on a rectified pair (left is the reference).
+pub fn match_pair(
+    left: &GreyImage,
+    right: &GreyImage,
+    cost: &MatchingCost<'_>,
+    settings: &MatchSettings,
+) -> Result<MatchOutput> {
+    validate(left, right, settings.max_disp)?;
+    let (w, h, dm) = (left.width, left.height, settings.max_disp);
+    let mut timings = Vec::new();
+    let mut clock = Instant::now();
+    let mut lap = |name: &'static str, timings: &mut Vec<(&'static str, f64)>| {
+        timings.push((name, clock.elapsed().as_secs_f64()));
+        clock = Instant::now();
+    };
+    let (left_unit, right_unit) = (unit_range(left), unit_range(right));
+    let sgm_or_raw = |volume: CostVolume| match &settings.sgm {
+        Some(p) => semi_global_matching(&volume, &left_unit, &right_unit, p),
+        None => volume,
+    };
+    let mut volume = match cost {
+        MatchingCost::Learned(network) => learned_cost_volume(network, left, right, dm),
+        MatchingCost::Census => census_cost_volume(&left_unit, &right_unit, dm),
+        MatchingCost::Zncc => zncc_cost_volume(&left_unit, &right_unit, dm),
+        MatchingCost::MutualInformation { iterations } => {
+            let census = census_cost_volume(&left_unit, &right_unit, dm);
+            let mut disparity = winner_take_all(&sgm_or_raw(census));
+            let mut volume =
+                mutual_information_cost_volume(&left_unit, &right_unit, dm, &disparity);
+            for _ in 1..*iterations {
+                disparity = winner_take_all(&sgm_or_raw(volume));
+                volume = mutual_information_cost_volume(&left_unit, &right_unit, dm, &disparity);
+            }
+            volume
+        }
+    };
+    lap("cost", &mut timings);
+    if let Some(cbca) = &settings.aggregation_before_sgm {
+        cross_based_aggregation(&mut volume, &left_unit, &right_unit, cbca);
+        lap("aggregation before SGM", &mut timings);
+    }
+    if let Some(p) = &settings.sgm {
+        volume = semi_global_matching(&volume, &left_unit, &right_unit, p);
+        lap("SGM", &mut timings);
+    }
+    if let Some(cbca) = &settings.aggregation_after_sgm {
+        cross_based_aggregation(&mut volume, &left_unit, &right_unit, cbca);
+        lap("aggregation after SGM", &mut timings);
+    }
+    let mut disparity = winner_take_all(&volume);
+    lap("winner-take-all", &mut timings);
+    if settings.left_right != LeftRight::Off {
+        let classes = classify(&disparity, &right_disparity(&volume), w, dm);
+        disparity = if settings.left_right == LeftRight::CheckAndFill {
+            fill_inconsistent(&disparity, &classes, w, h)
+        } else {
+            disparity
+                .iter()
+                .zip(&classes)
+                .map(|(&d, c)| {
+                    if *c == Consistency::Correct {
+                        d
+                    } else {
+                        f32::NAN
+                    }
+                })
+                .collect()
+        };
+        lap("left-right check", &mut timings);
+    }
+    if settings.subpixel {
+        disparity = subpixel_disparity(&volume, &disparity);
+        lap("subpixel", &mut timings);
+    }
+    if settings.median {
+        disparity = median_filter(&disparity, w, h, 2);
+        lap("median", &mut timings);
+    }
+    if let Some(bilateral) = &settings.bilateral {
+        disparity = bilateral_filter(&disparity, &normalise_image(left), bilateral);
+        lap("bilateral", &mut timings);
+    }
+    Ok(MatchOutput {
+        width: w,
+        height: h,
+        disparity,
+        timings,
+    })
+}

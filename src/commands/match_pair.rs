@@ -1,0 +1,179 @@
+//! `anaglyph match`: the disparity of one rectified pair through the full stereo chain,
+//! written as PFM (+inf where invalid), with an optional colour-mapped preview and a JSON
+//! report of the settings and per-stage timings.
+
+use super::format_seconds;
+use crate::cli::{ChannelChoice, LeftRightChoice, MatchArgs, MatchMethod};
+use crate::progress::spinner;
+use anaglyph_core::io::{
+    read_linear_image, write_atomically, write_disparity_preview, write_pfm, PfmImage,
+};
+use anaglyph_core::stereo::{
+    match_pair, GreyImage, LeftRight, MatchSettings, MatchingCost, MatchingNetwork,
+};
+use std::path::Path;
+use std::time::Instant;
+
+/// Reads one image as the grey plane to match.
+fn load_grey(path: &Path, channel: ChannelChoice) -> anyhow::Result<GreyImage> {
+    let image = read_linear_image(path)?;
+    let c = image.channels;
+    let data: Vec<f32> = image
+        .data
+        .chunks_exact(c)
+        .map(|p| match (c, channel) {
+            (1, _) => p[0],
+            (_, ChannelChoice::Luminance) => 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2],
+            (_, ChannelChoice::R) => p[0],
+            (_, ChannelChoice::G) => p[1],
+            (_, ChannelChoice::B) => p[2],
+        })
+        .collect();
+    if c == 1 && channel != ChannelChoice::Luminance {
+        anyhow::bail!(
+            "{}: --channel {channel:?} needs an RGB image, this one is grey",
+            path.display()
+        );
+    }
+    Ok(GreyImage {
+        width: image.width,
+        height: image.height,
+        data,
+    })
+}
+
+pub fn run(args: MatchArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let left = load_grey(&args.left, args.channel)?;
+    let right = load_grey(&args.right, args.channel)?;
+    if (left.width, left.height) != (right.width, right.height) {
+        anyhow::bail!(
+            "{} is {}×{} but {} is {}×{}; a rectified pair has equal sizes",
+            args.left.display(),
+            left.width,
+            left.height,
+            args.right.display(),
+            right.width,
+            right.height
+        );
+    }
+    let max_disp = args.max_disp as usize;
+    if max_disp > left.width {
+        anyhow::bail!(
+            "--max-disp {max_disp} exceeds the image width {}",
+            left.width
+        );
+    }
+    let network = match (args.method, &args.model) {
+        (MatchMethod::Mccnn | MatchMethod::MccnnAccurate, Some(path)) => Some(MatchingNetwork::load(path)?),
+        (MatchMethod::Mccnn, None) => Some(MatchingNetwork::default_fast()?),
+        (MatchMethod::MccnnAccurate, None) => anyhow::bail!(
+            "--method mccnn-accurate needs --model PATH (train one with `anaglyph train --arch accurate`)"
+        ),
+        (_, Some(_)) => anyhow::bail!("--model only applies to --method mccnn or mccnn-accurate"),
+        _ => None,
+    };
+    if let Some(n) = &network {
+        if (args.method == MatchMethod::MccnnAccurate) != n.is_accurate() {
+            anyhow::bail!(
+                "--method {:?} but the model is the {} network",
+                args.method,
+                if n.is_accurate() { "accurate" } else { "fast" }
+            );
+        }
+    }
+    let cost = match (args.method, &network) {
+        (MatchMethod::Census, _) => MatchingCost::Census,
+        (MatchMethod::Zncc, _) => MatchingCost::Zncc,
+        (MatchMethod::Mi, _) => MatchingCost::MutualInformation { iterations: 3 },
+        (_, Some(n)) => MatchingCost::Learned(n),
+        (_, None) => unreachable!("learned methods always load a network above"),
+    };
+    let mut settings = if args.raw {
+        MatchSettings::raw(max_disp)
+    } else {
+        MatchSettings::for_cost(&cost, max_disp)
+    };
+    if args.no_aggregation {
+        settings.aggregation_before_sgm = None;
+        settings.aggregation_after_sgm = None;
+    }
+    if args.no_sgm {
+        settings.sgm = None;
+    }
+    if let Some(sgm) = &mut settings.sgm {
+        sgm.paths = if args.sgm_paths >= 8 { 8 } else { 4 };
+    }
+    if !args.raw {
+        settings.left_right = match args.left_right {
+            LeftRightChoice::Off => LeftRight::Off,
+            LeftRightChoice::Check => LeftRight::Check,
+            LeftRightChoice::Fill => LeftRight::CheckAndFill,
+        };
+    }
+    settings.subpixel &= !args.no_subpixel;
+    settings.median &= !args.no_median;
+    if args.no_bilateral {
+        settings.bilateral = None;
+    }
+    let bar = spinner(format!(
+        "matching {}×{} with {} over {max_disp} disparities",
+        left.width,
+        left.height,
+        cost.name()
+    ));
+    let out = match_pair(&left, &right, &cost, &settings)?;
+    bar.finish_and_clear();
+    let pfm = PfmImage {
+        width: out.width,
+        height: out.height,
+        channels: 1,
+        data: out
+            .disparity
+            .iter()
+            .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
+            .collect(),
+    };
+    write_pfm(&args.out, &pfm)?;
+    if let Some(path) = &args.preview {
+        write_disparity_preview(path, &out.disparity, out.width, out.height, max_disp as f32)?;
+    }
+    let valid = out.disparity.iter().filter(|d| d.is_finite()).count();
+    let total: f64 = out.timings.iter().map(|t| t.1).sum();
+    let megapixels = (out.width * out.height) as f64 / 1e6;
+    eprintln!(
+        "{}: {}×{}, {} disparities, {} ({:.1} % valid) in {}",
+        cost.name(),
+        out.width,
+        out.height,
+        max_disp,
+        args.out.display(),
+        100.0 * valid as f64 / out.disparity.len().max(1) as f64,
+        format_seconds(total)
+    );
+    for (stage, seconds) in &out.timings {
+        eprintln!(
+            "  {stage:<24} {:>10}  ({:.3} s per Mpx per 100 disparities)",
+            format_seconds(*seconds),
+            seconds / megapixels / (max_disp as f64 / 100.0)
+        );
+    }
+    if let Some(path) = &args.report {
+        let report = serde_json::json!({
+            "left": args.left,
+            "right": args.right,
+            "method": cost.name(),
+            "max_disp": max_disp,
+            "width": out.width,
+            "height": out.height,
+            "valid_fraction": valid as f64 / out.disparity.len().max(1) as f64,
+            "settings": format!("{settings:?}"),
+            "timings_s": out.timings.iter().map(|(k, v)| serde_json::json!({"stage": k, "seconds": v})).collect::<Vec<_>>(),
+            "total_s": total,
+            "wall_s": started.elapsed().as_secs_f64(),
+        });
+        let text = serde_json::to_string_pretty(&report)?;
+        write_atomically(path, |w| w.write_all(text.as_bytes()))?;
+    }
+    Ok(())
+}
