@@ -125,6 +125,9 @@ pub struct MatchArgs {
     /// Winner-take-all on the raw cost: every refinement stage off.
     #[arg(long)]
     pub raw: bool,
+    /// Start from MC-CNN's published KITTI 2015 values instead of anaglyph's tuned chain.
+    #[arg(long, conflicts_with = "raw")]
+    pub published: bool,
     /// Write per-stage timings and settings as JSON here.
     #[arg(long)]
     pub report: Option<PathBuf>,

@@ -407,3 +407,140 @@ fn simulate_writes_the_documented_layout_and_rejects_bad_scenes() {
     );
     assert!(!o.status.success());
 }
+
+#[test]
+fn match_writes_a_pfm_close_to_the_simulated_truth_and_rejects_bad_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = anaglyph(
+        &[
+            "simulate", "--scene", "tabletop", "--size", "256x192", "--out", "sim",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let truth =
+        anaglyph_core::io::read_pfm(&dir.path().join("sim/truth/r0c0_disparity.pfm")).unwrap();
+    for method in ["mccnn", "census", "zncc", "mi"] {
+        let out = format!("{method}.pfm");
+        let o = anaglyph(
+            &[
+                "match",
+                "--left",
+                "sim/captures/r0c0.png",
+                "--right",
+                "sim/captures/r0c1.png",
+                "--max-disp",
+                "64",
+                "--method",
+                method,
+                "--out",
+                &out,
+                "--preview",
+                "preview.png",
+                "--report",
+                "report.json",
+            ],
+            dir.path(),
+        );
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let d = anaglyph_core::io::read_pfm(&dir.path().join(&out)).unwrap();
+        assert_eq!((d.width, d.height), (256, 192));
+        let (mut good, mut total) = (0, 0);
+        for (i, (e, t)) in d.data.iter().zip(&truth.data).enumerate() {
+            if i % 256 >= 64 && t.is_finite() {
+                total += 1;
+                good += usize::from((e - t).abs() <= 2.0);
+            }
+        }
+        let share = good as f64 / total as f64;
+        eprintln!("{method}: {share:.4} within 2 px");
+        // Measured on this pair (the paper's first two gels, deep red and salmon): mccnn
+        // 0.953, census 0.663, zncc 0.839, mi 0.870.
+        let bound = match method {
+            "mccnn" => 0.92,
+            "census" => 0.6,
+            "zncc" => 0.78,
+            _ => 0.8,
+        };
+        assert!(share > bound, "{method}: {share}");
+        let report = std::fs::read_to_string(dir.path().join("report.json")).unwrap();
+        assert!(report.contains("\"SGM\""), "{report}");
+    }
+    let preview = image::open(dir.path().join("preview.png")).unwrap();
+    assert_eq!((preview.width(), preview.height()), (256, 192));
+    // Raw winner-take-all leaves every stage out of the timings.
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "sim/captures/r0c0.png",
+            "--right",
+            "sim/captures/r0c1.png",
+            "--max-disp",
+            "24",
+            "--method",
+            "census",
+            "--raw",
+            "--out",
+            "raw.pfm",
+        ],
+        dir.path(),
+    );
+    assert!(
+        o.status.success() && !stderr(&o).contains("SGM"),
+        "{}",
+        stderr(&o)
+    );
+
+    // A pair of different sizes, a search range wider than the image, a missing model.
+    let small = image::GrayImage::new(40, 30);
+    small.save(dir.path().join("small.png")).unwrap();
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "sim/captures/r0c0.png",
+            "--right",
+            "small.png",
+            "--max-disp",
+            "16",
+            "--out",
+            "x.pfm",
+        ],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "equal sizes");
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "small.png",
+            "--right",
+            "small.png",
+            "--max-disp",
+            "64",
+            "--out",
+            "x.pfm",
+        ],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "exceeds the image width");
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "small.png",
+            "--right",
+            "small.png",
+            "--max-disp",
+            "8",
+            "--model",
+            "nope.safetensors",
+            "--out",
+            "x.pfm",
+        ],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "nope.safetensors");
+    assert!(!dir.path().join("x.pfm").exists());
+}

@@ -91,6 +91,8 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     };
     let mut settings = if args.raw {
         MatchSettings::raw(max_disp)
+    } else if args.published {
+        MatchSettings::published_for_cost(&cost, max_disp)
     } else {
         MatchSettings::for_cost(&cost, max_disp)
     };

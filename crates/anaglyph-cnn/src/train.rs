@@ -77,7 +77,8 @@ pub struct ValidationPoint {
     pub train_loss: f64,
     /// % of held-out triplets (no augmentation) ranked wrongly.
     pub triplet_error: f64,
-    /// Winner-take-all bad-2 (%) of the whole held-out pairs, by kind.
+    /// Winner-take-all bad-2 (%) of the whole held-out pairs, by kind (fast networks; NaN
+    /// for accurate ones).
     pub bad2_heterogeneous: f64,
     pub bad2_homogeneous: f64,
 }
@@ -203,6 +204,16 @@ pub fn winner_take_all_bad2(network: &MatchingNetwork, pairs: &[&StereoPair]) ->
     100.0 * bad as f64 / total.max(1) as f64
 }
 
+/// Whole-pair validation, for fast networks only: the accurate head over every pixel and
+/// disparity of the validation pairs would take minutes per point (NaN then).
+fn whole_pair_bad2(network: &MatchingNetwork, pairs: &[&StereoPair]) -> f64 {
+    if network.is_accurate() {
+        f64::NAN
+    } else {
+        winner_take_all_bad2(network, pairs)
+    }
+}
+
 /// The network as the inference path sees it.
 pub fn to_inference(net: &MatchingNet) -> Result<MatchingNetwork> {
     let bytes = net.to_safetensors(HashMap::new())?;
@@ -291,8 +302,8 @@ pub fn train(
                 seconds: started.elapsed().as_secs_f64(),
                 train_loss: loss_sum / loss_count.max(1) as f64,
                 triplet_error: 100.0 * wrong,
-                bad2_heterogeneous: winner_take_all_bad2(&inference, &heterogeneous),
-                bad2_homogeneous: winner_take_all_bad2(&inference, &homogeneous),
+                bad2_heterogeneous: whole_pair_bad2(&inference, &heterogeneous),
+                bad2_homogeneous: whole_pair_bad2(&inference, &homogeneous),
             });
             (loss_sum, loss_count) = (0.0, 0);
             point = curve.last();

@@ -11,9 +11,12 @@ use anaglyph_core::stereo::{
 };
 
 /// Bounds for the chain tests (measured values in the tests' comments).
-const LEARNED_HETEROGENEOUS_BOUND: f64 = 100.0;
-const LEARNED_HOMOGENEOUS_BOUND: f64 = 100.0;
-const MI_HETEROGENEOUS_BOUND: f64 = 100.0;
+/// Learned cost over the rig's neighbours (measured 6.58 %).
+const LEARNED_HETEROGENEOUS_BOUND: f64 = 9.0;
+/// Learned cost with teal on both cameras (measured 7.26 %).
+const LEARNED_HOMOGENEOUS_BOUND: f64 = 10.0;
+/// MI across deep red and teal (measured 15.22 %).
+const MI_HETEROGENEOUS_BOUND: f64 = 20.0;
 use std::path::Path;
 
 /// Smooth random texture: a sum of sinusoids with incommensurate frequencies.
@@ -114,12 +117,15 @@ fn grey(capture: &[f32], w: usize, h: usize) -> GreyImage {
     }
 }
 
-/// Views r0c0/r0c1 of the tabletop at 200×150 through a 1×2 rig with the given gels:
+/// Views r0c0/r0c1 of the tabletop through a 1×2 rig with the given gels and focal length:
 /// (left, right, true left disparity).
-fn tabletop_pair(filters: [&str; 2]) -> (GreyImage, GreyImage, Vec<f32>) {
-    let (w, h) = (200, 150);
+fn tabletop_pair(
+    filters: [&str; 2],
+    (w, h): (usize, usize),
+    focal_length_px: f64,
+) -> (GreyImage, GreyImage, Vec<f32>) {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 1800.0 * w as f64 / 640.0;
+    file.focal_length_px = focal_length_px;
     file.rows = 1;
     file.cols = 2;
     file.cameras.truncate(2);
@@ -146,10 +152,10 @@ fn tabletop_pair(filters: [&str; 2]) -> (GreyImage, GreyImage, Vec<f32>) {
 
 /// bad-2 (% of pixels with finite truth, right of the search range, whose estimate is off
 /// by more than 2 px or invalid).
-fn bad2_of(estimate: &[f32], truth: &[f32], w: usize) -> f64 {
+fn bad2_of(estimate: &[f32], truth: &[f32], w: usize, max_disp: usize) -> f64 {
     let (mut bad, mut total) = (0, 0);
     for (i, (e, t)) in estimate.iter().zip(truth).enumerate() {
-        if i % w < 24 || !t.is_finite() {
+        if i % w < max_disp || !t.is_finite() {
             continue;
         }
         total += 1;
@@ -160,7 +166,7 @@ fn bad2_of(estimate: &[f32], truth: &[f32], w: usize) -> f64 {
 
 /// bad-2 of census + SGM + left–right check + subpixel on the tabletop pair.
 fn bad2(filters: [&str; 2]) -> f64 {
-    let (left, right, truth) = tabletop_pair(filters);
+    let (left, right, truth) = tabletop_pair(filters, (200, 150), 1800.0 * 200.0 / 640.0);
     let volume = census_cost_volume(&left, &right, 24);
     let aggregated =
         semi_global_matching(&volume, &left, &right, &SgmParameters::MC_CNN_FAST_KITTI);
@@ -168,7 +174,7 @@ fn bad2(filters: [&str; 2]) -> f64 {
         &aggregated,
         &left_right_check(&aggregated, &winner_take_all(&aggregated)),
     );
-    bad2_of(&d, &truth, left.width)
+    bad2_of(&d, &truth, left.width, 24)
 }
 
 #[test]
@@ -185,28 +191,49 @@ fn census_sgm_on_simulated_pairs() {
     );
 }
 
-/// bad-2 of the full default chain of a cost on the tabletop pair.
+/// bad-2 of the full default chain of a cost on the tabletop pair at 256×192 seen with the
+/// paper rig's own 1800 px focal length (disparities 20–46 px, as in `anaglyph simulate`).
 fn chain_bad2(filters: [&str; 2], cost: &MatchingCost<'_>) -> f64 {
-    let (left, right, truth) = tabletop_pair(filters);
-    let out = match_pair(&left, &right, cost, &MatchSettings::for_cost(cost, 24)).unwrap();
-    bad2_of(&out.disparity, &truth, left.width)
+    let (left, right, truth) = tabletop_pair(filters, (256, 192), 1800.0);
+    let out = match_pair(&left, &right, cost, &MatchSettings::for_cost(cost, 64)).unwrap();
+    bad2_of(&out.disparity, &truth, left.width, 64)
 }
 
+/// The horizontal neighbours of the paper's rig: the pairs the pipeline matches.
+const RIG_NEIGHBOURS: [[&str; 2]; 6] = [
+    ["gel_deep_red", "gel_salmon"],
+    ["gel_salmon", "gel_magenta"],
+    ["gel_magenta", "gel_lavender"],
+    ["gel_violet", "gel_teal"],
+    ["gel_teal", "gel_yellow_green"],
+    ["gel_yellow_green", "gel_emerald"],
+];
+
 #[test]
-fn the_learned_cost_closes_the_cross_spectral_gap() {
+fn the_learned_cost_beats_census_across_the_rig_and_stays_near_homogeneous() {
     let network = MatchingNetwork::default_fast().unwrap();
     let learned = MatchingCost::Learned(&network);
-    let heterogeneous = chain_bad2(["gel_deep_red", "gel_teal"], &learned);
+    let mean = |cost: &MatchingCost<'_>| {
+        RIG_NEIGHBOURS
+            .iter()
+            .map(|pair| chain_bad2(*pair, cost))
+            .sum::<f64>()
+            / RIG_NEIGHBOURS.len() as f64
+    };
+    let heterogeneous = mean(&learned);
+    let census = mean(&MatchingCost::Census);
+    let zncc = mean(&MatchingCost::Zncc);
     let homogeneous = chain_bad2(["gel_teal", "gel_teal"], &learned);
-    let census = chain_bad2(["gel_deep_red", "gel_teal"], &MatchingCost::Census);
-    eprintln!("learned {heterogeneous:.2} % heterogeneous, {homogeneous:.2} % homogeneous; census {census:.2} %");
-    // Measured: see the README's stereo table; the bounds leave about 30 % headroom.
+    eprintln!(
+        "rig neighbours: learned {heterogeneous:.2} %, census {census:.2} %, zncc {zncc:.2} %; \
+         learned homogeneous {homogeneous:.2} %"
+    );
     assert!(
         heterogeneous < LEARNED_HETEROGENEOUS_BOUND,
         "learned heterogeneous {heterogeneous}"
     );
     assert!(
-        heterogeneous < census,
+        heterogeneous < 0.8 * census,
         "learned {heterogeneous} vs census {census}"
     );
     assert!(
