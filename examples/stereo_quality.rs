@@ -4,14 +4,26 @@
 //! (same gel and channel). Prints a Markdown table of bad-2.0, average error, density and
 //! time per megapixel per 100 disparities.
 //!
-//! `cargo run --release --example stereo_quality -- [SCENES] [WIDTH] [HEIGHT]`; with
-//! `ANAGLYPH_SCENE=tabletop` (or another preset) every pair shows that preset instead of a
-//! random scene, the gels, sensor, channels and noise still drawn per seed.
+//! `cargo run --release --example stereo_quality -- [SCENES] [WIDTH] [HEIGHT]` (random
+//! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
+//! own neighbouring cameras on the three presets instead.
 
-use anaglyph_cnn::dataset::{simulated_pair_with, PairKind, PairSettings, StereoPair};
+use anaglyph_cnn::dataset::{
+    rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
+};
 use anaglyph_core::scene::SceneFile;
 use anaglyph_core::stereo::{match_pair, MatchSettings, MatchingCost, MatchingNetwork};
 use std::time::Instant;
+
+/// The horizontal neighbours of the paper's 2×4 rig.
+const RIG_NEIGHBOURS: [[&str; 2]; 6] = [
+    ["gel_deep_red", "gel_salmon"],
+    ["gel_salmon", "gel_magenta"],
+    ["gel_magenta", "gel_lavender"],
+    ["gel_violet", "gel_teal"],
+    ["gel_teal", "gel_yellow_green"],
+    ["gel_yellow_green", "gel_emerald"],
+];
 
 /// First scene seed of the test pairs (training starts at 1 000 000, validation 900 000).
 const TEST_SEED: u64 = 800_000;
@@ -63,29 +75,64 @@ fn main() -> anyhow::Result<()> {
         .skip(1)
         .map(|a| a.parse())
         .collect::<Result<_, _>>()?;
-    let count = args.first().copied().unwrap_or(16);
-    let settings = PairSettings {
-        width: args.get(1).copied().unwrap_or(320),
-        height: args.get(2).copied().unwrap_or(240),
-        homogeneous_share: 0.5,
-    };
-    let max_disp = 64 * settings.width / 256;
-    // Every held-out scene twice, once with different gels or channels, once with the
-    // same: the two kinds differ only in the filters.
+    let count = args.first().copied().unwrap_or(12);
+    let (width, height) = (
+        args.get(1).copied().unwrap_or(256),
+        args.get(2).copied().unwrap_or(192),
+    );
+    let rig_mode = std::env::var("ANAGLYPH_PAIRS").is_ok_and(|v| v == "rig");
     let mut pairs = Vec::new();
-    for i in 0..count as u64 {
-        for homogeneous in [false, true] {
-            let scene = match std::env::var("ANAGLYPH_SCENE") {
-                Ok(name) => Some(SceneFile::preset(&name)?),
-                Err(_) => None,
-            };
-            pairs.push(simulated_pair_with(
-                TEST_SEED + i,
-                &settings,
-                Some(homogeneous),
-                scene,
-            )?);
+    let max_disp;
+    if rig_mode {
+        // The paper rig's horizontal neighbours on the three presets, at the rig's own
+        // 1800 px focal length (disparities 20–46 px), each also with the left gel on
+        // both cameras.
+        max_disp = 64;
+        for (k, preset) in ["tabletop", "clutter", "periodic"].iter().enumerate() {
+            for pair in RIG_NEIGHBOURS {
+                for filters in [pair, [pair[0], pair[0]]] {
+                    let camera = RigPair {
+                        filters,
+                        sensor: "canon_eos_5d_mark_ii",
+                        focal_length_px: 1800.0,
+                    };
+                    pairs.push(rig_pair(
+                        SceneFile::preset(preset)?,
+                        &camera,
+                        width,
+                        height,
+                        TEST_SEED + k as u64,
+                    )?);
+                }
+            }
         }
+        println!(
+            "the paper rig's 6 horizontal neighbours on 3 presets at {width}×{height}, \
+             f = 1800 px, {max_disp} disparities"
+        );
+    } else {
+        // Every held-out scene twice, once with different gels or channels, once with
+        // the same: the two kinds differ only in the filters.
+        let settings = PairSettings {
+            width,
+            height,
+            homogeneous_share: 0.5,
+        };
+        max_disp = 64 * width / 256;
+        for i in 0..count as u64 {
+            for homogeneous in [false, true] {
+                pairs.push(simulated_pair_with(
+                    TEST_SEED + i,
+                    &settings,
+                    Some(homogeneous),
+                    None,
+                )?);
+            }
+        }
+        println!(
+            "{count} held-out random scenes (seeds {TEST_SEED}+) at {width}×{height}, \
+             {max_disp} disparities"
+        );
     }
     let fast = MatchingNetwork::default_fast()?;
     let accurate = std::env::var("ANAGLYPH_ACCURATE_MODEL")
@@ -102,10 +149,6 @@ fn main() -> anyhow::Result<()> {
         costs.insert(1, MatchingCost::Learned(n));
     }
     let kinds = [PairKind::Heterogeneous, PairKind::Homogeneous];
-    println!(
-        "{count} held-out pairs at {}×{}, {max_disp} disparities",
-        settings.width, settings.height
-    );
     println!(
         "| cost | chain | pairs | bad-2.0 % | avg error px | density % | s / Mpx / 100 disp |"
     );

@@ -12,7 +12,7 @@
 use anaglyph_core::builtin;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{builtin_texture, random_scene, Scene, SceneFile, TEXTURE_NAMES};
-use anaglyph_core::simulate::{Simulation, SimulationSettings};
+use anaglyph_core::simulate::{RenderedView, Simulation, SimulationSettings};
 use anaglyph_core::stereo::{normalise_image, GreyImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -134,44 +134,14 @@ pub fn simulated_pair_with(
         pick_channel(&mut rng)
     };
     let (w, h) = (settings.width, settings.height);
-    let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4);
-    file.sensor = format!("builtin:{sensor}");
-    file.rows = 1;
-    file.cols = 2;
-    file.cameras.truncate(2);
-    file.cameras[0].filter = format!("builtin:{first}");
-    file.cameras[1].filter = format!("builtin:{second}");
-    let rig = Rig::from_file(file, ".".into())?;
-    let scene = Scene::resolve(scene.unwrap_or_else(|| random_scene(seed)), Path::new("."))?;
-    let sim = Simulation::run(
-        &rig,
-        &scene,
-        SimulationSettings {
-            width: w,
-            height: h,
-            seed,
-            ..SimulationSettings::default()
-        },
-    )?;
-    let (lv, rv) = (&sim.views[0], &sim.views[1]);
-    // Keep the disparity where the right view sees the same surface (|d_R(x − d) − d| < 1).
-    let disparity = (0..w * h)
-        .map(|i| {
-            let (x, y) = (i % w, i / w);
-            let d = lv.disparity[i];
-            let xr = (x as f32 - d).round();
-            if !d.is_finite() || xr < 0.0 || xr >= w as f32 {
-                return f32::NAN;
-            }
-            let dr = rv.disparity[y * w + xr as usize];
-            if (dr - d).abs() < 1.0 {
-                d
-            } else {
-                f32::NAN
-            }
-        })
-        .collect();
+    let focal_length_px = 1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4);
+    let scene = scene.unwrap_or_else(|| random_scene(seed));
+    let camera = RigPair {
+        filters: [first, second],
+        sensor,
+        focal_length_px,
+    };
+    let (lv, rv, disparity) = render_pair(&camera, scene, w, h, seed)?;
     let name = |c: Channel| match c {
         Channel::Luminance => "Y".to_string(),
         Channel::Colour(c) => ["R", "G", "B"][c].to_string(),
@@ -190,6 +160,108 @@ pub fn simulated_pair_with(
             name(left_channel),
             name(right_channel)
         ),
+    })
+}
+
+/// Two cameras side by side (the paper rig's 30 mm baseline).
+#[derive(Debug, Clone, Copy)]
+pub struct RigPair<'a> {
+    pub filters: [&'a str; 2],
+    pub sensor: &'a str,
+    pub focal_length_px: f64,
+}
+
+/// Renders a scene through two cameras: (left view, right view, left disparity where the
+/// right view sees the same surface, else NaN).
+fn render_pair(
+    camera: &RigPair<'_>,
+    scene: SceneFile,
+    w: usize,
+    h: usize,
+    seed: u64,
+) -> anaglyph_core::Result<(RenderedView, RenderedView, Vec<f32>)> {
+    let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
+    file.focal_length_px = camera.focal_length_px;
+    file.sensor = format!("builtin:{}", camera.sensor);
+    file.rows = 1;
+    file.cols = 2;
+    file.cameras.truncate(2);
+    file.cameras[0].filter = format!("builtin:{}", camera.filters[0]);
+    file.cameras[1].filter = format!("builtin:{}", camera.filters[1]);
+    let rig = Rig::from_file(file, ".".into())?;
+    let scene = Scene::resolve(scene, Path::new("."))?;
+    let sim = Simulation::run(
+        &rig,
+        &scene,
+        SimulationSettings {
+            width: w,
+            height: h,
+            seed,
+            ..SimulationSettings::default()
+        },
+    )?;
+    let mut views = sim.views.into_iter();
+    let (lv, rv) = match (views.next(), views.next()) {
+        (Some(l), Some(r)) => (l, r),
+        _ => {
+            return Err(anaglyph_core::Error::Invalid {
+                context: "stereo pair".into(),
+                message: "the simulator returned fewer than two views".into(),
+            })
+        }
+    };
+    // Keep the disparity where the right view sees the same surface (|d_R(x − d) − d| < 1).
+    let disparity = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let d = lv.disparity[i];
+            let xr = (x as f32 - d).round();
+            if !d.is_finite() || xr < 0.0 || xr >= w as f32 {
+                return f32::NAN;
+            }
+            let dr = rv.disparity[y * w + xr as usize];
+            if (dr - d).abs() < 1.0 {
+                d
+            } else {
+                f32::NAN
+            }
+        })
+        .collect();
+    Ok((lv, rv, disparity))
+}
+
+/// A pair of the paper's rig proper (Canon sensor, luminance, the rig's focal length
+/// unless given): for evaluating on the camera pairs the pipeline actually matches.
+pub fn rig_pair(
+    scene: SceneFile,
+    camera: &RigPair<'_>,
+    width: usize,
+    height: usize,
+    seed: u64,
+) -> anaglyph_core::Result<StereoPair> {
+    let (lv, rv, disparity) = render_pair(camera, scene, width, height, seed)?;
+    Ok(StereoPair {
+        left: normalise_image(&grey_of(
+            &lv.capture,
+            lv.channels,
+            width,
+            height,
+            Channel::Luminance,
+        )),
+        right: normalise_image(&grey_of(
+            &rv.capture,
+            rv.channels,
+            width,
+            height,
+            Channel::Luminance,
+        )),
+        disparity,
+        kind: if camera.filters[0] == camera.filters[1] {
+            PairKind::Homogeneous
+        } else {
+            PairKind::Heterogeneous
+        },
+        label: format!("{} vs {}", camera.filters[0], camera.filters[1]),
     })
 }
 
