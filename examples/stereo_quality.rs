@@ -6,7 +6,9 @@
 //!
 //! `cargo run --release --example stereo_quality -- [SCENES] [WIDTH] [HEIGHT]` (random
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
-//! own neighbouring cameras on the three presets instead.
+//! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
+//! fewer). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
+//! network; `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs.
 
 use anaglyph_cnn::dataset::{
     rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
@@ -88,7 +90,9 @@ fn main() -> anyhow::Result<()> {
         // 1800 px focal length (disparities 20–46 px), each also with the left gel on
         // both cameras.
         max_disp = 64;
-        for (k, preset) in ["tabletop", "clutter", "periodic"].iter().enumerate() {
+        let presets = std::env::var("ANAGLYPH_PRESETS")
+            .unwrap_or_else(|_| "tabletop,clutter,periodic".into());
+        for (k, preset) in presets.split(',').enumerate() {
             for pair in RIG_NEIGHBOURS {
                 for filters in [pair, [pair[0], pair[0]]] {
                     let camera = RigPair {
@@ -107,7 +111,7 @@ fn main() -> anyhow::Result<()> {
             }
         }
         println!(
-            "the paper rig's 6 horizontal neighbours on 3 presets at {width}×{height}, \
+            "the paper rig's 6 horizontal neighbours on {presets} at {width}×{height}, \
              f = 1800 px, {max_disp} disparities"
         );
     } else {
@@ -147,6 +151,10 @@ fn main() -> anyhow::Result<()> {
     ];
     if let Some(n) = &accurate {
         costs.insert(1, MatchingCost::Learned(n));
+    }
+    if let Ok(only) = std::env::var("ANAGLYPH_COSTS") {
+        let only: Vec<&str> = only.split(',').collect();
+        costs.retain(|c| only.contains(&c.name()));
     }
     let kinds = [PairKind::Heterogeneous, PairKind::Homogeneous];
     println!(
