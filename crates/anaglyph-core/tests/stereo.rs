@@ -1,20 +1,24 @@
-//! Classical matching costs and the SGM chain against known disparities: a synthetic
-//! shifted pair, and simulated camera pairs from the simulator's ground truth.
+//! Matching costs and the stereo chain against known disparities: a synthetic shifted
+//! pair, and simulated camera pairs (horizontal and vertical) from the simulator's ground
+//! truth.
 
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
 use anaglyph_core::stereo::{
-    census_cost_volume, left_right_check, match_pair, semi_global_matching, subpixel_disparity,
-    winner_take_all, zncc_cost_volume, CostVolume, GreyImage, MatchSettings, MatchingCost,
-    MatchingNetwork, SgmParameters,
+    census_cost_volume, left_right_check, match_pair, match_vertical, semi_global_matching,
+    subpixel_disparity, transpose, winner_take_all, zncc_cost_volume, CostVolume, GreyImage,
+    MatchSettings, MatchingCost, MatchingNetwork, SgmParameters,
 };
 
-/// Bounds for the chain tests (measured values in the tests' comments).
+// Bounds for the chain tests, with the measured values.
+
 /// Learned cost over the rig's neighbours (measured 6.58 %).
 const LEARNED_HETEROGENEOUS_BOUND: f64 = 9.0;
 /// Learned cost with teal on both cameras (measured 7.26 %).
 const LEARNED_HOMOGENEOUS_BOUND: f64 = 10.0;
+/// Share of the vertical pair's pixels within 2 px (deep red over violet, measured 0.916).
+const VERTICAL_GOOD_BOUND: f64 = 0.88;
 /// MI across deep red and teal (measured 15.22 %).
 const MI_HETEROGENEOUS_BOUND: f64 = 20.0;
 use std::path::Path;
@@ -250,4 +254,65 @@ fn mutual_information_survives_filters_that_invert_contrast() {
     );
     eprintln!("mi {mi:.2} % heterogeneous");
     assert!(mi < MI_HETEROGENEOUS_BOUND, "mi heterogeneous {mi}");
+}
+
+#[test]
+fn vertical_pairs_match_through_transposition() {
+    // A 2×1 rig: the camera below sees a point at y − d·(b_y/b_x), d the column disparity.
+    let (w, h) = (192, 256);
+    let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
+    file.rows = 2;
+    file.cols = 1;
+    file.cameras.truncate(2);
+    file.cameras[1].row = 1;
+    file.cameras[1].col = 0;
+    file.cameras[0].filter = "builtin:gel_deep_red".into();
+    file.cameras[1].filter = "builtin:gel_violet".into();
+    let ratio = (file.baseline_mm.vertical / file.baseline_mm.horizontal) as f32;
+    let rig = Rig::from_file(file, ".".into()).unwrap();
+    let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
+    let sim = Simulation::run(
+        &rig,
+        &scene,
+        SimulationSettings {
+            width: w,
+            height: h,
+            ..SimulationSettings::default()
+        },
+    )
+    .unwrap();
+    let network = MatchingNetwork::default_fast().unwrap();
+    let cost = MatchingCost::Learned(&network);
+    let (top, bottom) = (
+        grey(&sim.views[0].capture, w, h),
+        grey(&sim.views[1].capture, w, h),
+    );
+    let max_disp = 96;
+    let out = match_vertical(
+        &top,
+        &bottom,
+        &cost,
+        &MatchSettings::for_cost(&cost, max_disp),
+    )
+    .unwrap();
+    assert_eq!((out.width, out.height), (w, h));
+    let (mut good, mut total) = (0, 0);
+    for (i, (&e, &d)) in out
+        .disparity
+        .iter()
+        .zip(&sim.views[0].disparity)
+        .enumerate()
+    {
+        let t = d * ratio;
+        if i / w < max_disp || !t.is_finite() {
+            continue;
+        }
+        total += 1;
+        good += usize::from((e - t).abs() <= 2.0);
+    }
+    let share = good as f64 / total as f64;
+    eprintln!("vertical deep red over violet: {share:.4} within 2 px");
+    assert!(share > VERTICAL_GOOD_BOUND, "{share}");
+    // Transposition is an involution.
+    assert_eq!(transpose(&transpose(&top)), top);
 }

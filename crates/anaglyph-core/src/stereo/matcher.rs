@@ -311,3 +311,39 @@ pub fn match_pair(
         timings,
     })
 }
+
+/// The image with rows and columns swapped.
+pub fn transpose(image: &GreyImage) -> GreyImage {
+    let (w, h) = (image.width, image.height);
+    GreyImage {
+        width: h,
+        height: w,
+        data: (0..w * h)
+            .map(|i| image.data[(i % h) * w + i / h])
+            .collect(),
+    }
+}
+
+/// Runs the chain on a vertical pair: `top` is the reference and `bottom` the camera one
+/// row below, so `y_bottom = y_top − d` (the column convention turned by 90°). Matches the
+/// transposed images and transposes the disparity back.
+pub fn match_vertical(
+    top: &GreyImage,
+    bottom: &GreyImage,
+    cost: &MatchingCost<'_>,
+    settings: &MatchSettings,
+) -> Result<MatchOutput> {
+    let out = match_pair(&transpose(top), &transpose(bottom), cost, settings)?;
+    let transposed = GreyImage {
+        width: out.width,
+        height: out.height,
+        data: out.disparity,
+    };
+    let back = transpose(&transposed);
+    Ok(MatchOutput {
+        width: back.width,
+        height: back.height,
+        disparity: back.data,
+        timings: out.timings,
+    })
+}

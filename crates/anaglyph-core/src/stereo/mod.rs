@@ -27,7 +27,10 @@ pub use disparity_filters::{
     Consistency,
 };
 pub use learned::{cosine_costs, learned_cost_volume, normalise_image, tower_features, FeatureMap};
-pub use matcher::{match_pair, unit_range, LeftRight, MatchOutput, MatchSettings, MatchingCost};
+pub use matcher::{
+    match_pair, match_vertical, transpose, unit_range, LeftRight, MatchOutput, MatchSettings,
+    MatchingCost,
+};
 pub use mutual_information::{mutual_information_cost_volume, mutual_information_table, BINS};
 pub use network::{ConvLayer, DenseLayer, MatchingNetwork, DEFAULT_FAST_WEIGHTS};
 pub use refine::{left_right_check, subpixel_disparity, winner_take_all, LEFT_RIGHT_TOLERANCE};
