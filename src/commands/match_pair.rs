@@ -87,7 +87,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         (MatchMethod::Zncc, _) => MatchingCost::Zncc,
         (MatchMethod::Mi, _) => MatchingCost::MutualInformation { iterations: 3 },
         (_, Some(n)) => MatchingCost::Learned(n),
-        (_, None) => unreachable!("learned methods always load a network above"),
+        (_, None) => anyhow::bail!("--method {:?} needs a network", args.method),
     };
     let mut settings = if args.raw {
         MatchSettings::raw(max_disp)

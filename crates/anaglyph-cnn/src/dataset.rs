@@ -446,6 +446,10 @@ pub struct TripletBatch {
     pub negative: Vec<f32>,
 }
 
+/// Draws allowed per triplet before sampling gives up (usable pixels are typically over
+/// half of a pair; a thousand misses in a row mean there are none).
+const MAX_ATTEMPTS_PER_TRIPLET: usize = 1000;
+
 /// Samples `batch` triplets: a group drawn by weight, then a pair and a pixel with known
 /// disparity uniformly within it.
 pub fn sample_triplets(
@@ -453,7 +457,7 @@ pub fn sample_triplets(
     batch: usize,
     augmentation: &Augmentation,
     rng: &mut ChaCha8Rng,
-) -> TripletBatch {
+) -> crate::Result<TripletBatch> {
     let n = PATCH * PATCH;
     let mut out = TripletBatch {
         batch,
@@ -463,7 +467,18 @@ pub fn sample_triplets(
     };
     let margin = (PATCH / 2) as f32 + 1.0;
     let mut filled = 0;
+    // Every draw that lands on an unusable pixel costs an attempt; pairs without any
+    // usable pixel would otherwise loop for ever.
+    let mut attempts = 0usize;
     while filled < batch {
+        attempts += 1;
+        if attempts > MAX_ATTEMPTS_PER_TRIPLET * batch {
+            return Err(crate::Error::NoTrainingPixels {
+                attempts,
+                filled,
+                wanted: batch,
+            });
+        }
         let mut pick = rng.random::<f64>() * groups.iter().map(|g| g.1).sum::<f64>();
         let group = groups
             .iter()
@@ -512,5 +527,5 @@ pub fn sample_triplets(
         );
         filled += 1;
     }
-    out
+    Ok(out)
 }

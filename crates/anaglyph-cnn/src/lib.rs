@@ -26,6 +26,15 @@ pub enum Error {
     Architecture(#[from] ArchitectureError),
     #[error("cannot serialise the model: {0}")]
     Serialise(String),
+    #[error(
+        "found only {filled} of {wanted} training triplets in {attempts} draws: the pairs have \
+         no pixel with known disparity whose patches fit inside the image (images too small?)"
+    )]
+    NoTrainingPixels {
+        attempts: usize,
+        filled: usize,
+        wanted: usize,
+    },
     #[error("training diverged at step {step} (loss {loss})")]
     Diverged { step: usize, loss: f64 },
 }

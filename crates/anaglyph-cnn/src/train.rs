@@ -265,7 +265,7 @@ pub fn train(
         1024,
         &Augmentation::NONE,
         &mut validation_rng,
-    );
+    )?;
     let heterogeneous: Vec<&StereoPair> = validation
         .iter()
         .filter(|p| p.kind == PairKind::Heterogeneous)
@@ -292,7 +292,7 @@ pub fn train(
         let progress = (step - 1) as f64 / settings.steps.max(1) as f64;
         let decay = 0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
         optimiser.set_learning_rate(settings.learning_rate * decay);
-        let batch = sample_triplets(&groups, settings.batch, &settings.augmentation, &mut rng);
+        let batch = sample_triplets(&groups, settings.batch, &settings.augmentation, &mut rng)?;
         let (loss, _) = batch_loss(&net, &batch)?;
         optimiser.backward_step(&loss)?;
         let loss = loss.to_scalar::<f32>()? as f64;

@@ -135,7 +135,8 @@ fn triplets_put_the_positive_on_the_true_match() {
         256,
         &Augmentation::NONE,
         &mut rng,
-    );
+    )
+    .unwrap();
     let n = PATCH * PATCH;
     let distance = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(p, q)| (p - q).abs()).sum::<f32>();
     let closer = (0..256)
@@ -149,4 +150,27 @@ fn triplets_put_the_positive_on_the_true_match() {
         closer > 200,
         "{closer} of 256 positives closer than their negatives"
     );
+}
+
+#[test]
+fn sampling_from_pairs_without_usable_pixels_is_an_error_not_a_hang() {
+    let mut pair = simulated_pair(
+        78,
+        &PairSettings {
+            width: 64,
+            height: 48,
+            homogeneous_share: 0.0,
+        },
+    )
+    .unwrap();
+    pair.disparity.iter_mut().for_each(|d| *d = f32::NAN);
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let result = sample_triplets(
+        &[(std::slice::from_ref(&pair), 1.0)],
+        8,
+        &Augmentation::NONE,
+        &mut rng,
+    );
+    let message = result.expect_err("no usable pixel").to_string();
+    assert!(message.contains("0 of 8"), "{message}");
 }
