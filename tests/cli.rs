@@ -547,5 +547,23 @@ fn match_writes_a_pfm_close_to_the_simulated_truth_and_rejects_bad_pairs() {
         dir.path(),
     );
     assert_clean_failure(&o, "nope.safetensors");
+    std::fs::write(dir.path().join("junk.safetensors"), b"not weights at all").unwrap();
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "small.png",
+            "--right",
+            "small.png",
+            "--max-disp",
+            "8",
+            "--model",
+            "junk.safetensors",
+            "--out",
+            "x.pfm",
+        ],
+        dir.path(),
+    );
+    assert_clean_failure(&o, "not a safetensors file");
     assert!(!dir.path().join("x.pfm").exists());
 }
