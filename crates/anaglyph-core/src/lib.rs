@@ -5,7 +5,9 @@
 //!
 //! ```text
 //! spectrum (curves) + filters + rig -> sensing matrix C -> capture (forward model, noise)
-//!   -> demux (per-pixel solve of Eq. 6) -> metrics;  io for the file formats at the edges
+//! scene -> simulate -> captures -> stereo -> register (disparity per view, warp)
+//!   -> demux (per-pixel solve of Eq. 6) -> reconstruct (the light field) -> metrics
+//! io for the file formats at the edges
 //! ```
 //!
 //! ```
@@ -38,6 +40,8 @@ pub mod evaluation;
 pub mod filters;
 pub mod io;
 pub mod metrics;
+pub mod reconstruct;
+pub mod register;
 pub mod rig;
 pub mod scene;
 pub mod simulate;

@@ -4,7 +4,7 @@
 
 mod ssim;
 
-pub use ssim::{ssim, SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW};
+pub use ssim::{masked_ssim, ssim, ssim_map, SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW};
 
 /// Peak signal-to-noise ratio in dB: `10 log10(peak² / MSE)`; ∞ for identical inputs.
 pub fn psnr(truth: &[f64], estimate: &[f64], peak: f64) -> f64 {

@@ -45,14 +45,21 @@ fn filter_valid(plane: &[f64], width: usize, height: usize, k: &[f64; SSIM_WINDO
     out
 }
 
-/// Mean SSIM of two planes with dynamic range `range`; NaN if smaller than the window.
-pub fn ssim(a: &[f64], b: &[f64], width: usize, height: usize, range: f64) -> f64 {
+/// The SSIM map of two planes: `(map, map_width, map_height)`, entry (x, y) for the window
+/// centred on pixel (x + 5, y + 5); None if a plane is smaller than the window.
+pub fn ssim_map(
+    a: &[f64],
+    b: &[f64],
+    width: usize,
+    height: usize,
+    range: f64,
+) -> Option<(Vec<f64>, usize, usize)> {
     if width < SSIM_WINDOW
         || height < SSIM_WINDOW
         || a.len() != width * height
         || b.len() != a.len()
     {
-        return f64::NAN;
+        return None;
     }
     let k = gaussian_kernel();
     let prod = |f: &dyn Fn(f64, f64) -> f64| -> Vec<f64> {
@@ -65,7 +72,7 @@ pub fn ssim(a: &[f64], b: &[f64], width: usize, height: usize, range: f64) -> f6
     let ab = filter_valid(&prod(&|x, y| x * y), width, height, &k);
     let c1 = (SSIM_K1 * range).powi(2);
     let c2 = (SSIM_K2 * range).powi(2);
-    let total: f64 = (0..mu_a.len())
+    let map = (0..mu_a.len())
         .map(|i| {
             let (ma, mb) = (mu_a[i], mu_b[i]);
             let va = aa[i] - ma * ma;
@@ -73,8 +80,45 @@ pub fn ssim(a: &[f64], b: &[f64], width: usize, height: usize, range: f64) -> f6
             let cov = ab[i] - ma * mb;
             ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
         })
-        .sum();
-    total / mu_a.len() as f64
+        .collect();
+    Some((map, width - SSIM_WINDOW + 1, height - SSIM_WINDOW + 1))
+}
+
+/// Mean SSIM of two planes with dynamic range `range`; NaN if smaller than the window.
+pub fn ssim(a: &[f64], b: &[f64], width: usize, height: usize, range: f64) -> f64 {
+    match ssim_map(a, b, width, height, range) {
+        Some((map, _, _)) => map.iter().sum::<f64>() / map.len() as f64,
+        None => f64::NAN,
+    }
+}
+
+/// Mean SSIM over the windows centred on pixels where `mask` is true; NaN if none.
+pub fn masked_ssim(
+    a: &[f64],
+    b: &[f64],
+    width: usize,
+    height: usize,
+    range: f64,
+    mask: &[bool],
+) -> f64 {
+    let Some((map, mw, mh)) = ssim_map(a, b, width, height, range) else {
+        return f64::NAN;
+    };
+    let r = SSIM_WINDOW / 2;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for y in 0..mh {
+        for x in 0..mw {
+            if mask.get((y + r) * width + x + r) == Some(&true) {
+                sum += map[y * mw + x];
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        sum / n as f64
+    }
 }
 
 #[cfg(test)]

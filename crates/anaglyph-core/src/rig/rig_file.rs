@@ -89,6 +89,11 @@ pub struct CameraEntry {
     /// Linear capture of a white board (illumination and gain calibration).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub white: Option<PathBuf>,
+    /// Exposure metadata: the fraction of full scale a perfect white reaches in this
+    /// camera's brightest channel (gain × exposure time × aperture, relative to C's
+    /// normalisation); used when no white board is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<f64>,
 }
 
 /// The TOML document.
@@ -127,6 +132,8 @@ pub struct Camera {
     pub sensor: ResponseCurve,
     pub image: Option<PathBuf>,
     pub white: Option<PathBuf>,
+    /// Exposure metadata (see [`CameraEntry::exposure`]).
+    pub exposure: Option<f64>,
 }
 
 /// A loaded, validated rig: cameras in row-major order.
@@ -221,6 +228,14 @@ impl RigFile {
                     cam.row, cam.col, self.rows, self.cols
                 ));
             }
+            if let Some(e) = cam.exposure {
+                if !(e.is_finite() && e > 0.0) {
+                    return bad(format!(
+                        "camera r{}c{}: exposure {e} (expected > 0)",
+                        cam.row, cam.col
+                    ));
+                }
+            }
             let i = cam.row * self.cols + cam.col;
             if seen[i] {
                 return bad(format!("two cameras at row {} col {}", cam.row, cam.col));
@@ -313,6 +328,7 @@ impl Rig {
                 col: e.col,
                 image: resolve_path(&e.image),
                 white: resolve_path(&e.white),
+                exposure: e.exposure,
                 filter,
                 sensor,
             });
@@ -351,6 +367,7 @@ impl Rig {
                 sensor: None,
                 image: None,
                 white: None,
+                exposure: None,
             })
             .collect();
         RigFile {

@@ -147,6 +147,7 @@ pub fn write_simulation(
         {
             entry.image = Some(PathBuf::from(&capture));
             entry.white = Some(PathBuf::from(&white));
+            entry.exposure = Some(view.exposure);
         }
         let finite = view.disparity.iter().filter(|v| v.is_finite());
         let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {

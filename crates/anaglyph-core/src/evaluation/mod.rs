@@ -2,7 +2,12 @@
 //! rendered through a rig on the fine (1 nm) grid with the capture noise model, normalised
 //! by a white-board capture, demultiplexed, and compared with the truth at the band
 //! centres. This is the paper's Table 1 evaluation with perfect registration, and what
-//! `anaglyph demo` and the accuracy tests run.
+//! `anaglyph demo` and the accuracy tests run. [`light_field`] scores whole reconstructed
+//! views against the simulator's truth (`anaglyph eval`).
+
+mod light_field;
+
+pub use light_field::{score_cube, seen_by_all_views, BandScores, SAME_POINT_PX};
 
 use crate::capture::{measure_spectra, spectra_on_grid, CameraNoise};
 use crate::demux::{demultiplex, normalise_by_white, DemuxOptions, DemuxReport};

@@ -1,0 +1,321 @@
+//! The inputs of reconstruction: every camera's capture and white board, read from the
+//! paths of the rig file (or from folders of `r{row}c{col}.png|tif|tiff`), checked against
+//! the rig, and calibrated into the sensing matrix's units.
+//!
+//! **Calibration.** Exposure differs between cameras and is unknown. With a white-board
+//! capture, channel k of a camera has gain `g_k = mean(white_k) / (ρ_w · Σ_j C[r_k][j])`
+//! (ρ_w the board's reflectance): dividing by it removes exposure and, to first order, the
+//! illuminant, so demultiplexing returns reflectance (the paper's white-board step).
+//! Without one, the camera's exposure metadata is used (`g_k = exposure`), which needs C
+//! built with the scene's illuminant. Values at or above the saturation level are NaN.
+
+use crate::io::{read_linear_image, LinearImage};
+use crate::register::NormalisedView;
+use crate::rig::{Rig, SensingMatrix};
+use crate::simulate::Simulation;
+use crate::stereo::GreyImage;
+use crate::{Error, Result};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Coefficient of variation of a white board above which a warning is raised (an uneven
+/// board or vignetting: the per-channel gain is then only an average).
+pub const UNEVEN_WHITE_WARNING: f64 = 0.05;
+/// Picture extensions looked for in capture folders.
+const EXTENSIONS: [&str; 3] = ["png", "tif", "tiff"];
+
+/// One camera's pictures.
+#[derive(Debug, Clone)]
+pub struct CameraCapture {
+    pub row: usize,
+    pub col: usize,
+    pub capture: LinearImage,
+    pub white: Option<LinearImage>,
+    /// Exposure metadata (see [`crate::rig::CameraEntry::exposure`]).
+    pub exposure: Option<f64>,
+}
+
+/// The captures of the whole array, in the rig's camera order.
+#[derive(Debug, Clone)]
+pub struct ArrayCaptures {
+    pub width: usize,
+    pub height: usize,
+    pub cameras: Vec<CameraCapture>,
+}
+
+/// How a camera was calibrated.
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraCalibration {
+    pub row: usize,
+    pub col: usize,
+    /// "white board" or "exposure metadata".
+    pub method: &'static str,
+    /// Capture units per sensing-matrix unit, per channel.
+    pub gain: Vec<f64>,
+    /// Coefficient of variation of the white board per channel (None without one).
+    pub white_variation: Option<Vec<f64>>,
+    /// Capture values at or above the saturation level (masked).
+    pub saturated_values: usize,
+}
+
+/// `DIR/r{row}c{col}.{png,tif,tiff}`, the first that exists.
+fn find_in(dir: &Path, row: usize, col: usize) -> Result<PathBuf> {
+    EXTENSIONS
+        .iter()
+        .map(|e| dir.join(format!("r{row}c{col}.{e}")))
+        .find(|p| p.is_file())
+        .ok_or_else(|| {
+            Error::invalid(
+                dir.display().to_string(),
+                format!("no capture r{row}c{col}.png, .tif or .tiff for camera r{row}c{col}"),
+            )
+        })
+}
+
+impl ArrayCaptures {
+    /// Reads every camera's capture (and white board, where there is one): from `captures`
+    /// / `whites` folders when given, else from the paths in the rig file.
+    pub fn load(rig: &Rig, captures: Option<&Path>, whites: Option<&Path>) -> Result<Self> {
+        let mut cameras = Vec::with_capacity(rig.cameras.len());
+        for cam in &rig.cameras {
+            let name = format!("camera r{}c{}", cam.row, cam.col);
+            let capture_path = match captures {
+                Some(dir) => find_in(dir, cam.row, cam.col)?,
+                None => cam.image.clone().ok_or_else(|| {
+                    Error::invalid(
+                        &name,
+                        "the rig file names no image and no --captures folder was given",
+                    )
+                })?,
+            };
+            let white_path = match whites {
+                Some(dir) => Some(find_in(dir, cam.row, cam.col)?),
+                None => cam.white.clone(),
+            };
+            let capture = read_linear_image(&capture_path)?;
+            let white = white_path.as_deref().map(read_linear_image).transpose()?;
+            let channels = cam.sensor.channel_count();
+            for (what, image) in [("capture", Some(&capture)), ("white board", white.as_ref())] {
+                if let Some(image) = image {
+                    if image.channels != channels {
+                        return Err(Error::invalid(
+                            &name,
+                            format!(
+                                "{what} has {} channels but its sensor '{}' has {channels}: the rig does not match its images",
+                                image.channels,
+                                cam.sensor.name()
+                            ),
+                        ));
+                    }
+                }
+            }
+            cameras.push(CameraCapture {
+                row: cam.row,
+                col: cam.col,
+                capture,
+                white,
+                exposure: cam.exposure,
+            });
+        }
+        Self::from_cameras(cameras)
+    }
+
+    /// Checks that all pictures share one size.
+    pub fn from_cameras(cameras: Vec<CameraCapture>) -> Result<Self> {
+        let Some(first) = cameras.first() else {
+            return Err(Error::invalid("captures", "no cameras"));
+        };
+        let (width, height) = (first.capture.width, first.capture.height);
+        for cam in &cameras {
+            for (what, image) in [
+                ("capture", Some(&cam.capture)),
+                ("white board", cam.white.as_ref()),
+            ] {
+                if let Some(image) = image {
+                    if (image.width, image.height) != (width, height) {
+                        return Err(Error::Shape {
+                            op: format!("{what} of camera r{}c{}", cam.row, cam.col),
+                            got: vec![image.width, image.height],
+                            expected: vec![width, height],
+                        });
+                    }
+                }
+            }
+        }
+        Ok(ArrayCaptures {
+            width,
+            height,
+            cameras,
+        })
+    }
+
+    /// The captures of a simulation (each camera's exposure kept as metadata).
+    pub fn from_simulation(simulation: &Simulation) -> Self {
+        let (width, height) = (simulation.settings.width, simulation.settings.height);
+        let image = |data: &[f32], channels| LinearImage {
+            width,
+            height,
+            channels,
+            bit_depth: 16,
+            data: data.to_vec(),
+        };
+        ArrayCaptures {
+            width,
+            height,
+            cameras: simulation
+                .views
+                .iter()
+                .map(|v| CameraCapture {
+                    row: v.row,
+                    col: v.col,
+                    capture: image(&v.capture, v.channels),
+                    white: Some(image(&v.white, v.channels)),
+                    exposure: Some(v.exposure),
+                })
+                .collect(),
+        }
+    }
+
+    /// Each capture's luminance (Rec. 709 weights for RGB), the matcher's input.
+    pub fn grey_images(&self) -> Vec<GreyImage> {
+        self.cameras
+            .iter()
+            .map(|cam| GreyImage {
+                width: self.width,
+                height: self.height,
+                data: cam
+                    .capture
+                    .data
+                    .chunks_exact(cam.capture.channels)
+                    .map(|p| match p {
+                        [r, g, b] => 0.2126 * r + 0.7152 * g + 0.0722 * b,
+                        _ => p[0],
+                    })
+                    .collect(),
+            })
+            .collect()
+    }
+}
+
+/// Mean and coefficient of variation of channel `c` over values below `saturation`.
+fn channel_statistics(image: &LinearImage, c: usize, saturation: f32) -> Option<(f64, f64)> {
+    let (mut n, mut sum, mut sum2) = (0usize, 0.0f64, 0.0f64);
+    for &v in image.data.iter().skip(c).step_by(image.channels) {
+        if v < saturation {
+            n += 1;
+            sum += v as f64;
+            sum2 += (v as f64).powi(2);
+        }
+    }
+    if n == 0 {
+        return None;
+    }
+    let mean = sum / n as f64;
+    let variance = (sum2 / n as f64 - mean * mean).max(0.0);
+    Some((
+        mean,
+        if mean > 0.0 {
+            variance.sqrt() / mean
+        } else {
+            0.0
+        },
+    ))
+}
+
+/// Calibrates every camera into C's units (see the module docs). `sensing` must be the
+/// rig's C, its rows in camera order.
+pub fn calibrate(
+    captures: &ArrayCaptures,
+    sensing: &SensingMatrix,
+    white_reflectance: f64,
+    saturation_level: f32,
+) -> Result<(Vec<NormalisedView>, Vec<CameraCalibration>)> {
+    if !(white_reflectance > 0.0 && white_reflectance <= 1.0) {
+        return Err(Error::invalid(
+            "white board",
+            format!("reflectance {white_reflectance} (expected in (0, 1])"),
+        ));
+    }
+    let channels: usize = captures.cameras.iter().map(|c| c.capture.channels).sum();
+    if channels != sensing.rows() {
+        return Err(Error::Shape {
+            op: "calibration: capture channels against the rows of C".into(),
+            got: vec![channels],
+            expected: vec![sensing.rows()],
+        });
+    }
+    let mut views = Vec::with_capacity(captures.cameras.len());
+    let mut records = Vec::with_capacity(captures.cameras.len());
+    let mut first_row = 0;
+    for cam in &captures.cameras {
+        let ch = cam.capture.channels;
+        let name = format!("camera r{}c{}", cam.row, cam.col);
+        let (method, gain, variation) = match (&cam.white, cam.exposure) {
+            (Some(white), _) => {
+                let mut gain = Vec::with_capacity(ch);
+                let mut variation = Vec::with_capacity(ch);
+                for c in 0..ch {
+                    let Some((mean, cv)) = channel_statistics(white, c, saturation_level) else {
+                        return Err(Error::invalid(
+                            &name,
+                            format!(
+                                "white board channel {c} is saturated everywhere; expose it lower"
+                            ),
+                        ));
+                    };
+                    let response: f64 = sensing.row(first_row + c).iter().sum();
+                    if !(mean > 0.0) || !(response > 0.0) {
+                        return Err(Error::invalid(
+                            &name,
+                            format!("white board channel {c} reads {mean} (expected > 0)"),
+                        ));
+                    }
+                    gain.push(mean / (white_reflectance * response));
+                    variation.push(cv);
+                }
+                ("white board", gain, Some(variation))
+            }
+            (None, Some(exposure)) => ("exposure metadata", vec![exposure; ch], None),
+            (None, None) => {
+                return Err(Error::invalid(
+                    &name,
+                    "no white board capture and no exposure metadata: give a white board \
+                     (rig `white` or --white) or the camera's `exposure` with --illuminant",
+                ))
+            }
+        };
+        let mut saturated = 0;
+        let data: Vec<f32> = cam
+            .capture
+            .data
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                if v >= saturation_level || !v.is_finite() {
+                    saturated += 1;
+                    f32::NAN
+                } else {
+                    (v as f64 / gain[i % ch]) as f32
+                }
+            })
+            .collect();
+        views.push(NormalisedView {
+            row: cam.row,
+            col: cam.col,
+            width: captures.width,
+            height: captures.height,
+            channels: ch,
+            data,
+        });
+        records.push(CameraCalibration {
+            row: cam.row,
+            col: cam.col,
+            method,
+            gain,
+            white_variation: variation,
+            saturated_values: saturated,
+        });
+        first_row += ch;
+    }
+    Ok((views, records))
+}

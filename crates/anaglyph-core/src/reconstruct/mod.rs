@@ -1,0 +1,296 @@
+//! The whole pipeline, from a rig's captures to a multispectral light field (paper
+//! sections 2.1, 3.3, 2.3):
+//!
+//! ```text
+//! captures + white boards -> calibrate (C's units, saturation masked)
+//!   -> register (a disparity map per view) -> warp every capture to each requested view
+//!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
+//! ```
+//!
+//! In: a loaded [`Rig`] and its [`ArrayCaptures`] (rectified; see `rectify` for arrays that
+//! are not). Out: a [`LightField`] with a reflectance cube and disparity map per requested
+//! view, per-camera calibration, visibility, per-stage timings and warnings;
+//! [`write_light_field`] writes the fixed output layout.
+
+mod inputs;
+mod output;
+mod preview;
+mod probe_plot;
+
+pub use inputs::{
+    calibrate, ArrayCaptures, CameraCalibration, CameraCapture, UNEVEN_WHITE_WARNING,
+};
+pub use output::{write_light_field, OutputOptions};
+pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
+pub use probe_plot::{plot_probe, Probe};
+
+use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
+use crate::register::{
+    gather_measurements, register_views, ArrayGeometry, GridImage, RegistrationSettings, Visibility,
+};
+use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
+use crate::{Error, Result};
+use serde::Serialize;
+use std::time::Instant;
+
+/// Fraction of a view's pixels seen by every camera under which a warning is raised.
+pub const LOW_VISIBILITY_WARNING: f64 = 0.5;
+/// Fraction of a camera's values that may saturate before a warning is raised.
+pub const SATURATION_WARNING: f64 = 0.01;
+
+/// The stages reported to a progress callback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    Registration,
+    Warping,
+    Demultiplexing,
+}
+
+/// Everything reconstruction can be told.
+#[derive(Debug, Clone)]
+pub struct PipelineSettings<'a> {
+    pub registration: RegistrationSettings<'a>,
+    /// Reflectance of the white board.
+    pub white_reflectance: f64,
+    /// Capture values at or above this fraction of full scale are saturated.
+    pub saturation_level: f32,
+    pub demux: DemuxOptions,
+    /// Views to reconstruct as (row, col); None: every view.
+    pub views: Option<Vec<(usize, usize)>>,
+    /// Disparity maps to use instead of registration (one per camera, rig order), e.g.
+    /// the simulator's truth to measure what registration costs.
+    pub given_disparities: Option<Vec<Vec<f32>>>,
+}
+
+/// One reconstructed view.
+#[derive(Debug, Clone)]
+pub struct ReconstructedView {
+    pub row: usize,
+    pub col: usize,
+    /// Reflectance, `height × width × bands`, NaN where nothing was measured.
+    pub reflectance: Vec<f32>,
+    /// Disparity per column step (the simulator's convention), NaN where unknown.
+    pub disparity: Vec<f32>,
+    pub visibility: Visibility,
+    pub demux: DemuxReport,
+}
+
+/// The multispectral light field of an array.
+#[derive(Debug, Clone)]
+pub struct LightField {
+    pub width: usize,
+    pub height: usize,
+    /// Band centres, nm.
+    pub bands: Vec<f64>,
+    pub views: Vec<ReconstructedView>,
+    pub calibration: Vec<CameraCalibration>,
+    pub condition_number: f64,
+    /// (stage, seconds) in the order run.
+    pub timings: Vec<(String, f64)>,
+    pub warnings: Vec<String>,
+}
+
+/// Reconstructs the requested views of `rig` from `captures`. `progress(stage, done,
+/// total)` is called as work finishes.
+pub fn reconstruct(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    settings: &PipelineSettings<'_>,
+    progress: &(dyn Fn(Stage, usize, usize) + Sync),
+) -> Result<LightField> {
+    let (w, h) = (captures.width, captures.height);
+    if captures.cameras.len() != rig.cameras.len()
+        || captures
+            .cameras
+            .iter()
+            .zip(&rig.cameras)
+            .any(|(a, b)| (a.row, a.col) != (b.row, b.col))
+    {
+        return Err(Error::invalid(
+            "reconstruction",
+            "the captures do not follow the rig's cameras (one per camera, row-major)",
+        ));
+    }
+    let requested: Vec<usize> = match &settings.views {
+        None => (0..rig.cameras.len()).collect(),
+        Some(list) => list
+            .iter()
+            .map(|&(r, c)| {
+                rig.cameras
+                    .iter()
+                    .position(|cam| (cam.row, cam.col) == (r, c))
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            "reconstruction",
+                            format!(
+                                "view r{r}c{c} is not in the {}x{} rig",
+                                rig.file.rows, rig.file.cols
+                            ),
+                        )
+                    })
+            })
+            .collect::<Result<_>>()?,
+    };
+    let mut timings = Vec::new();
+    let mut warnings = Vec::new();
+    let clock = Instant::now();
+
+    let sensing = SensingMatrix::of_rig(rig)?;
+    let condition_number = sensing.condition_number()?;
+    if condition_number > ILL_CONDITIONED_WARNING && settings.demux.lambda == 0.0 {
+        warnings.push(format!(
+            "cond(C) = {condition_number:.3e} with lambda = 0: the solve amplifies noise; use lambda > 0"
+        ));
+    }
+    let (views, calibration) = calibrate(
+        captures,
+        &sensing,
+        settings.white_reflectance,
+        settings.saturation_level,
+    )?;
+    for (record, cam) in calibration.iter().zip(&captures.cameras) {
+        let fraction = record.saturated_values as f64 / cam.capture.data.len().max(1) as f64;
+        if fraction > SATURATION_WARNING {
+            warnings.push(format!(
+                "camera r{}c{}: {:.1} % of values saturated (masked)",
+                record.row,
+                record.col,
+                100.0 * fraction
+            ));
+        }
+        if let Some(cv) = &record.white_variation {
+            if let Some(worst) = cv.iter().cloned().reduce(f64::max) {
+                if worst > UNEVEN_WHITE_WARNING {
+                    warnings.push(format!(
+                        "camera r{}c{}: white board varies by {:.1} % (uneven light or vignetting; one gain per channel is applied)",
+                        record.row,
+                        record.col,
+                        100.0 * worst
+                    ));
+                }
+            }
+        }
+    }
+    timings.push(("calibration".to_string(), clock.elapsed().as_secs_f64()));
+
+    let geometry = ArrayGeometry::of_rig(rig);
+    let disparities = match &settings.given_disparities {
+        Some(given) => {
+            if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
+                return Err(Error::invalid(
+                    "reconstruction",
+                    format!(
+                        "given disparities: expected {} maps of {w}x{h}",
+                        rig.cameras.len()
+                    ),
+                ));
+            }
+            given.clone()
+        }
+        None => {
+            let images: Vec<GridImage> = captures
+                .grey_images()
+                .into_iter()
+                .zip(&captures.cameras)
+                .map(|(image, cam)| GridImage {
+                    row: cam.row,
+                    col: cam.col,
+                    image,
+                })
+                .collect();
+            let registration = register_views(
+                &images,
+                &geometry,
+                &settings.registration,
+                &|done, total| progress(Stage::Registration, done, total),
+            )?;
+            for (name, seconds) in &registration.timings {
+                timings.push((format!("registration: {name}"), *seconds));
+            }
+            registration.disparities
+        }
+    };
+
+    let bands = rig.reconstruction_shape()?;
+    let output = sensing.reported_offset..sensing.reported_offset + bands.count;
+    let options = DemuxOptions {
+        lambda: rig.file.reconstruction.lambda,
+        ..settings.demux
+    };
+    let (mut warp_seconds, mut demux_seconds) = (0.0, 0.0);
+    let mut reconstructed = Vec::with_capacity(requested.len());
+    for (k, &v) in requested.iter().enumerate() {
+        let start = Instant::now();
+        let (measurements, visibility) = gather_measurements(v, &views, &disparities, &geometry)?;
+        warp_seconds += start.elapsed().as_secs_f64();
+        progress(Stage::Warping, k + 1, requested.len());
+        let start = Instant::now();
+        let (reflectance, demux) = demultiplex_as::<f32, f32>(
+            sensing.values(),
+            sensing.rows(),
+            &measurements,
+            None,
+            output.clone(),
+            &options,
+        )?;
+        demux_seconds += start.elapsed().as_secs_f64();
+        progress(Stage::Demultiplexing, k + 1, requested.len());
+        let cam = &rig.cameras[v];
+        if visibility.seen_by_all < LOW_VISIBILITY_WARNING && rig.cameras.len() > 1 {
+            warnings.push(format!(
+                "view r{}c{}: only {:.1} % of pixels are seen by every camera",
+                cam.row,
+                cam.col,
+                100.0 * visibility.seen_by_all
+            ));
+        }
+        reconstructed.push(ReconstructedView {
+            row: cam.row,
+            col: cam.col,
+            reflectance,
+            disparity: disparities[v].clone(),
+            visibility,
+            demux,
+        });
+    }
+    timings.push(("warping".to_string(), warp_seconds));
+    timings.push(("demultiplexing".to_string(), demux_seconds));
+    Ok(LightField {
+        width: w,
+        height: h,
+        bands: bands.wavelengths(),
+        views: reconstructed,
+        calibration,
+        condition_number,
+        timings,
+        warnings,
+    })
+}
+
+/// The result of [`reconstruct`] as JSON-friendly records (everything but the images).
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewSummary {
+    pub row: usize,
+    pub col: usize,
+    pub visibility: Visibility,
+    pub demux: DemuxReport,
+    pub disparity_range: [f32; 2],
+    pub unmeasured_pixels: usize,
+}
+
+impl ReconstructedView {
+    pub fn summary(&self) -> ViewSummary {
+        let finite = self.disparity.iter().filter(|v| v.is_finite());
+        let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
+            [a.min(v), b.max(v)]
+        });
+        ViewSummary {
+            row: self.row,
+            col: self.col,
+            visibility: self.visibility.clone(),
+            demux: self.demux.clone(),
+            disparity_range: range,
+            unmeasured_pixels: self.demux.unmeasured_pixels,
+        }
+    }
+}

@@ -1,0 +1,195 @@
+//! The fixed output layout of `anaglyph reconstruct`, which `anaglyph eval` and users'
+//! tools rely on:
+//!
+//! ```text
+//! OUT/views/r{row}c{col}.hdr + .img      ENVI float32 reflectance, bands with wavelengths
+//! OUT/disparity/r{row}c{col}.pfm         disparity per column step (+inf: unknown)
+//! OUT/disparity/r{row}c{col}.png         colour-mapped preview (near warm, far cool)
+//! OUT/preview/r{row}c{col}_pseudo.png    through the camera's RGB curves (the paper)
+//! OUT/preview/r{row}c{col}_srgb.png      CIE 1931 under D65
+//! OUT/probes/r{row}c{col}.svg            spectra at the --probe pixels (with truth if known)
+//! OUT/manifest.json                      inputs, parameters, calibration, visibility,
+//!                                        per-stage timings, warnings, files
+//! ```
+
+use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe};
+use crate::io::{
+    read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube, PfmImage,
+};
+use crate::rig::Rig;
+use crate::{Error, Result};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// What to write besides the fixed layout.
+#[derive(Debug, Clone, Default)]
+pub struct OutputOptions {
+    /// Pixels (x, y) whose spectra are plotted.
+    pub probes: Vec<(usize, usize)>,
+    /// A simulator output folder whose `truth/` is drawn beside the probes.
+    pub truth: Option<PathBuf>,
+    /// Inputs and parameters recorded in the manifest as given.
+    pub parameters: serde_json::Value,
+    /// Seconds spent before reconstruction (loading), recorded as a stage.
+    pub loading_seconds: f64,
+}
+
+#[derive(Serialize)]
+struct Manifest<'a> {
+    generator: String,
+    parameters: &'a serde_json::Value,
+    width: usize,
+    height: usize,
+    bands_nm: &'a [f64],
+    condition_number: f64,
+    calibration: &'a [super::CameraCalibration],
+    views: Vec<super::ViewSummary>,
+    timings: Vec<(String, f64)>,
+    warnings: &'a [String],
+    files: Vec<String>,
+}
+
+fn create_dir(path: &Path) -> Result<()> {
+    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))
+}
+
+/// Writes `field` into `dir`; returns the files written (the manifest last).
+pub fn write_light_field(
+    dir: &Path,
+    rig: &Rig,
+    field: &LightField,
+    options: &OutputOptions,
+) -> Result<Vec<PathBuf>> {
+    let (w, h, nb) = (field.width, field.height, field.bands.len());
+    for &(x, y) in &options.probes {
+        if x >= w || y >= h {
+            return Err(Error::invalid(
+                "probe",
+                format!("pixel ({x}, {y}) lies outside the {w}x{h} image"),
+            ));
+        }
+    }
+    for sub in ["views", "disparity", "preview"] {
+        create_dir(&dir.join(sub))?;
+    }
+    if !options.probes.is_empty() {
+        create_dir(&dir.join("probes"))?;
+    }
+    let clock = std::time::Instant::now();
+    let max_disparity = field
+        .views
+        .iter()
+        .flat_map(|v| v.disparity.iter())
+        .filter(|d| d.is_finite())
+        .fold(0.0f32, |a, &b| a.max(b));
+    let mut files = Vec::new();
+    for view in &field.views {
+        let name = format!("r{}c{}", view.row, view.col);
+        let cube_path = dir.join(format!("views/{name}.hdr"));
+        write_envi(
+            &cube_path,
+            &EnviCube {
+                width: w,
+                height: h,
+                bands: nb,
+                wavelengths: Some(field.bands.clone()),
+                data: view.reflectance.clone(),
+            },
+            &format!("anaglyph reconstructed reflectance, view {name}"),
+        )?;
+        files.push(cube_path.clone());
+        files.push(cube_path.with_extension("img"));
+        let pfm = dir.join(format!("disparity/{name}.pfm"));
+        write_pfm(
+            &pfm,
+            &PfmImage {
+                width: w,
+                height: h,
+                channels: 1,
+                data: view
+                    .disparity
+                    .iter()
+                    .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
+                    .collect(),
+            },
+        )?;
+        let png = dir.join(format!("disparity/{name}.png"));
+        write_disparity_preview(&png, &view.disparity, w, h, max_disparity)?;
+        files.extend([pfm, png]);
+        let camera = rig
+            .cameras
+            .iter()
+            .find(|c| (c.row, c.col) == (view.row, view.col))
+            .ok_or_else(|| Error::invalid("output", format!("view {name} not in the rig")))?;
+        let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
+        pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
+        let srgb = dir.join(format!("preview/{name}_srgb.png"));
+        srgb_preview(&view.reflectance, w, h, &field.bands)?.save(&srgb)?;
+        files.extend([pseudo, srgb]);
+        if !options.probes.is_empty() {
+            let truth = match &options.truth {
+                Some(t) => Some(read_envi(&t.join(format!("truth/{name}.hdr")))?),
+                None => None,
+            };
+            if let Some(t) = &truth {
+                if (t.width, t.height, t.bands) != (w, h, nb) {
+                    return Err(Error::Shape {
+                        op: format!("probe truth of view {name}"),
+                        got: vec![t.width, t.height, t.bands],
+                        expected: vec![w, h, nb],
+                    });
+                }
+            }
+            let probes: Vec<Probe> = options
+                .probes
+                .iter()
+                .map(|&(x, y)| {
+                    let i = (y * w + x) * nb;
+                    Probe {
+                        label: format!("({x}, {y})"),
+                        estimate: view.reflectance[i..i + nb]
+                            .iter()
+                            .map(|&v| v as f64)
+                            .collect(),
+                        truth: truth
+                            .as_ref()
+                            .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
+                    }
+                })
+                .collect();
+            let svg = dir.join(format!("probes/{name}.svg"));
+            plot_probe(
+                &svg,
+                &format!("reflectance, view {name}"),
+                &field.bands,
+                &probes,
+            )?;
+            files.push(svg);
+        }
+    }
+    let mut timings = vec![("loading".to_string(), options.loading_seconds)];
+    timings.extend(field.timings.iter().cloned());
+    timings.push(("writing".to_string(), clock.elapsed().as_secs_f64()));
+    let manifest_path = dir.join("manifest.json");
+    let manifest = Manifest {
+        generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
+        parameters: &options.parameters,
+        width: w,
+        height: h,
+        bands_nm: &field.bands,
+        condition_number: field.condition_number,
+        calibration: &field.calibration,
+        views: field.views.iter().map(|v| v.summary()).collect(),
+        timings,
+        warnings: &field.warnings,
+        files: files
+            .iter()
+            .map(|f| f.strip_prefix(dir).unwrap_or(f).display().to_string())
+            .collect(),
+    };
+    let json = serde_json::to_string_pretty(&manifest)
+        .map_err(|e| Error::invalid("manifest", e.to_string()))?;
+    write_atomically(&manifest_path, |out| out.write_all(json.as_bytes()))?;
+    files.push(manifest_path);
+    Ok(files)
+}

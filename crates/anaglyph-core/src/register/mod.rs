@@ -1,0 +1,218 @@
+//! Registration (paper section 3.3), the stage `stereo -> register (warp) -> demux`: one
+//! disparity map per view of a rectified array, then every capture warped to every view.
+//!
+//! **Convention.** Disparities are in pixels per column step, the simulator's truth
+//! convention: a surface point at (x, y) of view (r, c) with disparity d appears at
+//! `(x − Δc·d, y − Δr·d·b_y/b_x)` in view (r + Δr, c + Δc). One map per view therefore
+//! registers it to every other camera of the array, diagonal ones included: the paper's
+//! intermediary images (a diagonal pair reached through the camera sharing a row with one
+//! and a column with the other) become a single resampling along the array geometry.
+//!
+//! **Modes** ([`RegistrationMode`]):
+//! - *pairwise*: each view is matched with its row neighbour and its column neighbour by
+//!   the heterogeneous matcher (vertical pairs by transposition, views on the right or
+//!   bottom edge by mirroring), the two maps are fused where they agree, and what neither
+//!   pair can see is filled from the background side;
+//! - *multi-baseline*: the learned features of a view are compared with those of every
+//!   other view at the disparity the array geometry predicts, costs are summed over the
+//!   best half-array (occlusion-robust, Kang et al. 2001), refined by SGM, and checked
+//!   against the neighbouring views' maps.
+
+mod multi_baseline;
+mod pairwise;
+mod warp;
+
+pub use multi_baseline::multi_baseline_disparities;
+pub use pairwise::pairwise_disparities;
+pub use warp::{gather_measurements, NormalisedView, Visibility, CONSISTENCY_PX};
+
+use crate::rig::Rig;
+use crate::stereo::{GreyImage, MatchingCost};
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// The layout of a rectified array: where each view sits and how far apart.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ArrayGeometry {
+    pub rows: usize,
+    pub cols: usize,
+    /// Vertical over horizontal baseline, `b_y / b_x`.
+    pub baseline_ratio: f64,
+}
+
+impl ArrayGeometry {
+    pub fn of_rig(rig: &Rig) -> Self {
+        let b = rig.file.baseline_mm;
+        ArrayGeometry {
+            rows: rig.file.rows,
+            cols: rig.file.cols,
+            baseline_ratio: b.vertical / b.horizontal,
+        }
+    }
+
+    /// The shift per unit disparity of a point of view `from` seen in view `to`:
+    /// `(x_to, y_to) = (x_from, y_from) + d · shift`.
+    pub fn shift(&self, from: (usize, usize), to: (usize, usize)) -> (f64, f64) {
+        (
+            -(to.1 as f64 - from.1 as f64),
+            -(to.0 as f64 - from.0 as f64) * self.baseline_ratio,
+        )
+    }
+}
+
+/// How disparities are estimated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RegistrationMode {
+    /// Row and column neighbours matched pairwise, fused.
+    Pairwise,
+    /// All views at once along the array geometry (learned cost only).
+    #[default]
+    MultiBaseline,
+}
+
+/// What registration needs besides the images.
+#[derive(Debug, Clone, Copy)]
+pub struct RegistrationSettings<'a> {
+    pub mode: RegistrationMode,
+    pub cost: MatchingCost<'a>,
+    /// Disparities searched, per column step: `[0, max_disp)`.
+    pub max_disp: usize,
+}
+
+/// A view's grey image for matching, at its place on the grid.
+#[derive(Debug, Clone)]
+pub struct GridImage {
+    pub row: usize,
+    pub col: usize,
+    pub image: GreyImage,
+}
+
+/// A disparity map per view (in `images` order, NaN where nothing could be estimated) and
+/// the seconds each stage took.
+#[derive(Debug, Clone)]
+pub struct Registration {
+    pub disparities: Vec<Vec<f32>>,
+    pub timings: Vec<(String, f64)>,
+}
+
+/// Estimates every view's disparity map. `progress(done, total)` is called as views finish.
+pub fn register_views(
+    images: &[GridImage],
+    geometry: &ArrayGeometry,
+    settings: &RegistrationSettings<'_>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Registration> {
+    validate(images, geometry, settings.max_disp)?;
+    match settings.mode {
+        RegistrationMode::Pairwise => pairwise_disparities(images, geometry, settings, progress),
+        RegistrationMode::MultiBaseline => {
+            multi_baseline_disparities(images, geometry, settings, progress)
+        }
+    }
+}
+
+fn validate(images: &[GridImage], geometry: &ArrayGeometry, max_disp: usize) -> Result<()> {
+    let Some(first) = images.first() else {
+        return Err(Error::invalid("registration", "no views"));
+    };
+    let (w, h) = (first.image.width, first.image.height);
+    for view in images {
+        if view.image.width != w || view.image.height != h || view.image.data.len() != w * h {
+            return Err(Error::Shape {
+                op: format!("registration: view r{}c{}", view.row, view.col),
+                got: vec![view.image.width, view.image.height],
+                expected: vec![w, h],
+            });
+        }
+        if view.row >= geometry.rows || view.col >= geometry.cols {
+            return Err(Error::invalid(
+                "registration",
+                format!(
+                    "view r{}c{} lies outside the {} x {} array",
+                    view.row, view.col, geometry.rows, geometry.cols
+                ),
+            ));
+        }
+    }
+    if !(geometry.baseline_ratio.is_finite() && geometry.baseline_ratio > 0.0) {
+        return Err(Error::invalid(
+            "registration",
+            format!("baseline ratio {} (expected > 0)", geometry.baseline_ratio),
+        ));
+    }
+    let longest = (max_disp as f64 * geometry.baseline_ratio.max(1.0)).ceil() as usize;
+    if max_disp < 2 || longest >= w.min(h) {
+        return Err(Error::invalid(
+            "registration",
+            format!(
+                "{max_disp} disparities ({longest} px along the longer baseline) do not fit a {w}x{h} image"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Index of the view at (row, col).
+fn find(images: &[GridImage], row: usize, col: usize) -> Option<usize> {
+    images.iter().position(|v| v.row == row && v.col == col)
+}
+
+/// Fills NaN pixels from the background side: the smaller of the nearest valid
+/// disparities to the left and to the right on the same row (an occluded surface lies
+/// behind its occluder). Rows without any valid pixel stay NaN.
+pub fn fill_from_background(disparity: &mut [f32], width: usize) {
+    for row in disparity.chunks_exact_mut(width) {
+        let mut left = vec![f32::NAN; width];
+        let mut last = f32::NAN;
+        for (x, v) in row.iter().enumerate() {
+            if v.is_finite() {
+                last = *v;
+            }
+            left[x] = last;
+        }
+        let mut right = f32::NAN;
+        for x in (0..width).rev() {
+            if row[x].is_finite() {
+                right = row[x];
+                continue;
+            }
+            row[x] = match (left[x].is_finite(), right.is_finite()) {
+                (true, true) => left[x].min(right),
+                (true, false) => left[x],
+                (false, true) => right,
+                (false, false) => f32::NAN,
+            };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shift_follows_the_array_geometry() {
+        let g = ArrayGeometry {
+            rows: 2,
+            cols: 4,
+            baseline_ratio: 5.0 / 3.0,
+        };
+        assert_eq!(g.shift((0, 0), (0, 1)), (-1.0, 0.0));
+        let (dx, dy) = g.shift((1, 3), (0, 1));
+        assert_eq!(dx, 2.0);
+        assert!((dy - 5.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn background_fill_takes_the_farther_neighbour() {
+        let nan = f32::NAN;
+        let mut d = vec![5.0, nan, nan, 9.0, nan, nan, nan, 2.0];
+        fill_from_background(&mut d, 4);
+        assert_eq!(d[..4], [5.0, 5.0, 5.0, 9.0]);
+        assert_eq!(d[4..], [2.0, 2.0, 2.0, 2.0]);
+        let mut empty = vec![nan; 3];
+        fill_from_background(&mut empty, 3);
+        assert!(empty.iter().all(|v| v.is_nan()));
+    }
+}
