@@ -40,6 +40,10 @@ pub enum Command {
     Train(TrainArgs),
     /// Disparity of a rectified pair (left is the reference), for any pair of filters.
     Match(MatchArgs),
+    /// A rig's captures to a multispectral light field: a reflectance cube per view.
+    Reconstruct(ReconstructArgs),
+    /// Score a reconstruction against the simulator's truth (the paper's Table 1).
+    Eval(EvalArgs),
 }
 
 /// Matching cost of `anaglyph match`.
@@ -453,4 +457,125 @@ pub struct DemuxArgs {
     /// Relative tolerance of the iterative solvers.
     #[arg(long, default_value_t = 1e-10)]
     pub tolerance: f64,
+}
+
+/// How views are registered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum RegistrationChoice {
+    /// Each view against all others at once along the array geometry (learned cost).
+    MultiBaseline,
+    /// Row and column neighbours matched pairwise, fused.
+    Pairwise,
+}
+
+/// Views of the array: `all` or a list like `r0c0,r1c2`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ViewList {
+    All,
+    Some(Vec<(usize, usize)>),
+}
+
+fn parse_views(text: &str) -> Result<ViewList, String> {
+    if text.trim().eq_ignore_ascii_case("all") {
+        return Ok(ViewList::All);
+    }
+    text.split(',')
+        .map(|item| {
+            let item = item.trim();
+            let bad = || format!("'{item}': expected r<row>c<col>, e.g. r0c1");
+            let rest = item.strip_prefix('r').ok_or_else(bad)?;
+            let (row, col) = rest.split_once('c').ok_or_else(bad)?;
+            Ok((
+                row.parse().map_err(|_| bad())?,
+                col.parse().map_err(|_| bad())?,
+            ))
+        })
+        .collect::<Result<Vec<_>, String>>()
+        .map(ViewList::Some)
+}
+
+/// Pixel positions (x, y) given as `x,y[,x,y...]`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Probes(pub Vec<(usize, usize)>);
+
+fn parse_probes(text: &str) -> Result<Probes, String> {
+    let values: Vec<usize> = text
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse()
+                .map_err(|_| format!("'{v}' is not a pixel coordinate"))
+        })
+        .collect::<Result<_, _>>()?;
+    if values.is_empty() || values.len() % 2 != 0 {
+        return Err("expected x,y pairs: x,y[,x,y...]".into());
+    }
+    Ok(Probes(
+        values.chunks_exact(2).map(|p| (p[0], p[1])).collect(),
+    ))
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ReconstructArgs {
+    /// Rig file (TOML) naming each camera's filter, sensor, capture and white board.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// Output folder (views/, disparity/, preview/, probes/, manifest.json).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Folder of captures named r{row}c{col}.png|tif (default: the rig's `image` paths).
+    #[arg(long)]
+    pub captures: Option<PathBuf>,
+    /// Folder of white-board captures named r{row}c{col}.png|tif (default: the rig's `white`).
+    #[arg(long)]
+    pub white: Option<PathBuf>,
+    /// Views to reconstruct: `all` or a list like r0c0,r1c2.
+    #[arg(long, default_value = "all", value_parser = parse_views)]
+    pub views: ViewList,
+    /// Scene illuminant (CSV or builtin:<name>) folded into C instead of the rig's; needed
+    /// with exposure metadata when there is no white board.
+    #[arg(long)]
+    pub illuminant: Option<String>,
+    #[arg(long, value_enum, default_value_t = RegistrationChoice::MultiBaseline)]
+    pub registration: RegistrationChoice,
+    /// Matching cost (multi-baseline registration needs mccnn).
+    #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
+    pub method: MatchMethod,
+    /// Network weights (safetensors from `anaglyph train`); default: the built-in fast model.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Disparities searched per column step: [0, N).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
+    pub max_disp: u64,
+    /// Reflectance of the white board.
+    #[arg(long, default_value_t = 0.95)]
+    pub white_reflectance: f64,
+    /// Capture values at or above this fraction of full scale are saturated (masked).
+    #[arg(long, default_value_t = 0.999)]
+    pub saturation: f32,
+    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
+    pub solver: SolverArg,
+    /// Pixels whose spectra are plotted: x,y[,x,y...].
+    #[arg(long, value_parser = parse_probes)]
+    pub probe: Option<Probes>,
+    /// A simulator output folder: its truth is drawn beside the probes.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Use this simulator output's true disparities instead of registration (the
+    /// registration ceiling).
+    #[arg(long, conflicts_with = "registration")]
+    pub true_disparity: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Simulator output folder (rig.toml, truth/).
+    #[arg(long)]
+    pub truth: PathBuf,
+    /// Reconstruction folder (views/).
+    #[arg(long)]
+    pub recon: PathBuf,
+    /// Write the scores as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
 }

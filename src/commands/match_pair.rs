@@ -42,6 +42,47 @@ fn load_grey(path: &Path, channel: ChannelChoice) -> anyhow::Result<GreyImage> {
     })
 }
 
+/// The network a matching method needs (None for the classical costs).
+pub fn load_network(
+    method: MatchMethod,
+    model: Option<&Path>,
+) -> anyhow::Result<Option<MatchingNetwork>> {
+    let network = match (method, model) {
+        (MatchMethod::Mccnn | MatchMethod::MccnnAccurate, Some(path)) => {
+            Some(MatchingNetwork::load(path)?)
+        }
+        (MatchMethod::Mccnn, None) => Some(MatchingNetwork::default_fast()?),
+        (MatchMethod::MccnnAccurate, None) => anyhow::bail!(
+            "--method mccnn-accurate needs --model PATH (train one with `anaglyph train --arch accurate`)"
+        ),
+        (_, Some(_)) => anyhow::bail!("--model only applies to --method mccnn or mccnn-accurate"),
+        _ => None,
+    };
+    if let Some(n) = &network {
+        if (method == MatchMethod::MccnnAccurate) != n.is_accurate() {
+            anyhow::bail!(
+                "--method {method:?} but the model is the {} network",
+                if n.is_accurate() { "accurate" } else { "fast" }
+            );
+        }
+    }
+    Ok(network)
+}
+
+/// The matching cost of a method, borrowing its network.
+pub fn matching_cost(
+    method: MatchMethod,
+    network: Option<&MatchingNetwork>,
+) -> anyhow::Result<MatchingCost<'_>> {
+    Ok(match (method, network) {
+        (MatchMethod::Census, _) => MatchingCost::Census,
+        (MatchMethod::Zncc, _) => MatchingCost::Zncc,
+        (MatchMethod::Mi, _) => MatchingCost::MutualInformation { iterations: 3 },
+        (_, Some(n)) => MatchingCost::Learned(n),
+        (_, None) => anyhow::bail!("--method {method:?} needs a network"),
+    })
+}
+
 pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let left = load_grey(&args.left, args.channel)?;
@@ -64,31 +105,8 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             left.width
         );
     }
-    let network = match (args.method, &args.model) {
-        (MatchMethod::Mccnn | MatchMethod::MccnnAccurate, Some(path)) => Some(MatchingNetwork::load(path)?),
-        (MatchMethod::Mccnn, None) => Some(MatchingNetwork::default_fast()?),
-        (MatchMethod::MccnnAccurate, None) => anyhow::bail!(
-            "--method mccnn-accurate needs --model PATH (train one with `anaglyph train --arch accurate`)"
-        ),
-        (_, Some(_)) => anyhow::bail!("--model only applies to --method mccnn or mccnn-accurate"),
-        _ => None,
-    };
-    if let Some(n) = &network {
-        if (args.method == MatchMethod::MccnnAccurate) != n.is_accurate() {
-            anyhow::bail!(
-                "--method {:?} but the model is the {} network",
-                args.method,
-                if n.is_accurate() { "accurate" } else { "fast" }
-            );
-        }
-    }
-    let cost = match (args.method, &network) {
-        (MatchMethod::Census, _) => MatchingCost::Census,
-        (MatchMethod::Zncc, _) => MatchingCost::Zncc,
-        (MatchMethod::Mi, _) => MatchingCost::MutualInformation { iterations: 3 },
-        (_, Some(n)) => MatchingCost::Learned(n),
-        (_, None) => anyhow::bail!("--method {:?} needs a network", args.method),
-    };
+    let network = load_network(args.method, args.model.as_deref())?;
+    let cost = matching_cost(args.method, network.as_ref())?;
     let mut settings = if args.raw {
         MatchSettings::raw(max_disp)
     } else if args.published {

@@ -4,7 +4,9 @@ mod calibrate_filter;
 mod demo;
 mod demux;
 mod demux_stream;
+mod eval;
 mod match_pair;
+mod reconstruct;
 mod rig;
 mod select_filters;
 mod simulate;
@@ -23,6 +25,8 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::run(args),
         Command::Train(args) => train::run(args),
         Command::Match(args) => match_pair::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Eval(args) => eval::run(args),
     }
 }
 
