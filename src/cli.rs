@@ -258,6 +258,13 @@ pub struct DemoArgs {
     /// Write the measured figures as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Output folder of the simulations, reconstructions and report.html.
+    #[arg(long, default_value = "anaglyph-demo")]
+    pub out: PathBuf,
+    /// Image size of the simulated scenes (the focal length follows, keeping the field of
+    /// view of the paper rig at 640×480).
+    #[arg(long, default_value = "320x240", value_parser = parse_size)]
+    pub size: (usize, usize),
 }
 
 #[derive(Debug, Subcommand)]

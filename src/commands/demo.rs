@@ -5,21 +5,20 @@
 //! renders the tabletop through the rig, reconstructs the reference view with the true
 //! disparities, and matches the neighbouring cameras with the learned and classical costs.
 
+use super::demo_light_field::{run_presets, PresetResult};
+use super::demo_report::{write_report, ReportInputs};
 use super::format_seconds;
 use super::select_filters::{load_candidates, print_report, run_selection, SelectionInputs};
 use crate::cli::DemoArgs;
 use anaglyph_core::builtin;
 use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::demux::{demultiplex, DemuxOptions, NormalEquations, Solver};
-use anaglyph_core::evaluation::{
-    oracle_measurements, recover_reflectances, TrialResult, TrialSettings,
-};
+use anaglyph_core::evaluation::{recover_reflectances, TrialResult, TrialSettings};
 use anaglyph_core::filters::{SelectionCriterion, SelectionOptions};
 use anaglyph_core::io::write_atomically;
-use anaglyph_core::metrics::{psnr_per_band, ssim};
+use anaglyph_core::reconstruct::{plot_probe, plot_series, Probe};
 use anaglyph_core::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
-use anaglyph_core::scene::{Scene, SceneFile};
-use anaglyph_core::simulate::{Simulation, SimulationSettings};
+use anaglyph_core::simulate::Simulation;
 use anaglyph_core::spectrum::ResponseCurve;
 use anaglyph_core::stereo::{match_pair, GreyImage, MatchSettings, MatchingCost, MatchingNetwork};
 use rand::{Rng, SeedableRng};
@@ -48,6 +47,8 @@ struct DemoReport {
     simulated_reference_psnr: f64,
     simulated_reference_ssim: f64,
     stereo_bad2: Vec<(String, f64)>,
+    light_fields: Vec<PresetResult>,
+    noise_in_c: Vec<(f64, f64)>,
 }
 
 #[derive(Serialize)]
@@ -60,7 +61,10 @@ struct SolverTiming {
 
 /// bad-2 (%) and seconds per pair of each matching cost over the rig's horizontal
 /// neighbours (left view = lower column), luminance of the captures, 32 disparities.
-fn stereo_on_neighbours(simulation: &Simulation) -> anyhow::Result<Vec<(&'static str, f64, f64)>> {
+fn stereo_on_neighbours(
+    simulation: &Simulation,
+    max_disp: usize,
+) -> anyhow::Result<Vec<(&'static str, f64, f64)>> {
     let network = MatchingNetwork::default_fast()?;
     let costs = [
         MatchingCost::Learned(&network),
@@ -80,7 +84,6 @@ fn stereo_on_neighbours(simulation: &Simulation) -> anyhow::Result<Vec<(&'static
             })
             .collect(),
     };
-    let max_disp = 32;
     let mut results = Vec::new();
     for cost in &costs {
         let (mut bad, mut total, mut seconds, mut pairs) = (0usize, 0usize, 0.0, 0);
@@ -390,105 +393,89 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         all.psnr
     );
 
-    println!("\n7. Simulator: scene 'tabletop' through this rig at 320×240, reference view r0c0 reconstructed");
+    let (width, height) = args.size;
     println!(
-        "   with the true disparities (oracle registration: the upper bound for the stereo stage)"
+        "\n7. Light fields: the {} preset scenes through this rig at {width}×{height}, every view reconstructed",
+        anaglyph_core::scene::PRESETS.len()
     );
-    let mut sim_file = Rig::paper_rig_file(&filters);
-    sim_file.focal_length_px = 900.0; // 1800 px at 640 px wide: the same field of view
-    let sim_rig = Rig::from_file(sim_file, ".".into())?;
-    let scene = Scene::resolve(SceneFile::preset("tabletop")?, std::path::Path::new("."))?;
-    let sim_settings = SimulationSettings {
-        width: 320,
-        height: 240,
-        seed: args.seed,
-        ..SimulationSettings::default()
-    };
-    let start = Instant::now();
-    let simulation = Simulation::run(&sim_rig, &scene, sim_settings.clone())?;
-    let rendered = start.elapsed().as_secs_f64();
-    let sim_c = SensingMatrix::of_rig(&sim_rig)?;
-    let rows = sim_c.rows();
-    let white_response: Vec<f64> = (0..rows)
-        .map(|r| sim_c.row(r).iter().sum::<f64>() * sim_settings.white_reflectance)
-        .collect();
-    let ratio = sim_rig.file.baseline_mm.vertical / sim_rig.file.baseline_mm.horizontal;
-    let measurements = oracle_measurements(&simulation, ratio, (0, 0), &white_response);
-    let output = sim_c.reported_offset..sim_c.reported_offset + shape.count;
-    let start = Instant::now();
-    let (cube, report) = demultiplex(
-        sim_c.values(),
-        rows,
-        &measurements,
-        None,
-        output,
-        &DemuxOptions::default(),
-    )?;
-    let solved = start.elapsed().as_secs_f64();
-    let truth: Vec<f64> = simulation.views[0]
-        .truth
-        .iter()
-        .map(|&v| v as f64)
-        .collect();
-    let (w, h) = (sim_settings.width, sim_settings.height);
-    let band_psnr = psnr_per_band(&truth, &cube, shape.count, 1.0);
-    let band_ssim: Vec<f64> = (0..shape.count)
-        .map(|b| {
-            let plane = |data: &[f64]| {
-                data.iter()
-                    .skip(b)
-                    .step_by(shape.count)
-                    .copied()
-                    .collect::<Vec<f64>>()
-            };
-            ssim(&plane(&truth), &plane(&cube), w, h, 1.0)
-        })
-        .collect();
-    let complete = measurements
-        .chunks_exact(rows)
-        .filter(|p| p.iter().all(|v| v.is_finite()))
-        .count();
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    println!(
-        "   rendered 8 views in {}, demultiplexed in {} ({} distinct visibility masks); {:.1} % of pixels seen by all 8 cameras",
-        format_seconds(rendered),
-        format_seconds(solved),
-        report.distinct_masks,
-        100.0 * complete as f64 / (w * h) as f64
-    );
-    println!("   reference view: PSNR {:.2} dB, SSIM {:.4} (band averages; paper Table 1: 26.7–30.9 dB, 0.82–0.91)", mean(&band_psnr), mean(&band_ssim));
-    // The same over pixels every camera sees.
-    let all_seen: Vec<usize> = measurements
-        .chunks_exact(rows)
-        .enumerate()
-        .filter(|(_, p)| p.iter().all(|v| v.is_finite()))
-        .map(|(i, _)| i)
-        .collect();
-    let pick = |data: &[f64]| -> Vec<f64> {
-        all_seen
-            .iter()
-            .flat_map(|&i| data[i * shape.count..(i + 1) * shape.count].to_vec())
-            .collect()
-    };
-    let seen_psnr = mean(&psnr_per_band(
-        &pick(&truth),
-        &pick(&cube),
-        shape.count,
-        1.0,
-    ));
-    println!("   pixels seen by all 8 cameras: PSNR {seen_psnr:.2} dB");
-    let sim_psnr = mean(&band_psnr);
-    let sim_ssim = mean(&band_ssim);
+    println!("   from the captures (learned multi-view registration) and with the true disparities (the ceiling)");
+    std::fs::create_dir_all(&args.out)?;
+    let (presets, simulation) = run_presets(&args.out, &filters, args.size, args.seed)?;
+    println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   time");
+    for p in &presets {
+        println!(
+            "   {:<10} {:>8.2} dB / {:.4}              {:>8.2} dB / {:.4}                {:>6.2} / {:>6.2} dB    {:>4.1} %  {}",
+            p.name,
+            p.estimated.reference.psnr,
+            p.estimated.reference.ssim,
+            p.true_disparity.reference.psnr,
+            p.true_disparity.reference.ssim,
+            p.estimated.mean_psnr,
+            p.true_disparity.mean_psnr,
+            p.reference_bad2,
+            format_seconds(p.estimated.seconds)
+        );
+    }
+    let sim_psnr = presets[0].true_disparity.reference.psnr;
+    let sim_ssim = presets[0].true_disparity.reference.ssim;
 
     println!("\n8. Cross-spectral stereo on the same captures: the 6 horizontally neighbouring pairs, 32 disparities");
     println!("   (bad-2.0: % of pixels seen by both cameras off by more than 2 px; default chain of `anaglyph match`)");
-    let stereo = stereo_on_neighbours(&simulation)?;
+    let stereo = stereo_on_neighbours(&simulation, (width / 10).max(8))?;
     for (name, bad2, seconds) in &stereo {
         println!(
             "   {name:<7} bad-2 {bad2:>5.1} %   ({} per pair)",
             format_seconds(*seconds)
         );
     }
+
+    println!("\n9. Robustness to errors in C (paper Fig. 8a): Gaussian noise of σ × max(C) added to the C used");
+    println!(
+        "   for reconstruction (measurements from the true curves, noise-free; all reflectances)"
+    );
+    let noise_in_c = psnr_against_noise_in_c(&library, &responses, &c, args.seed)?;
+    for (sigma, psnr) in &noise_in_c {
+        println!("   σ = {sigma:<6} PSNR {psnr:>6.2} dB");
+    }
+
+    let chart_svgs = write_chart_spectra(&args.out, &colorchecker, &chart, &centres)?;
+    let noise_svg = "noise_in_c.svg";
+    plot_series(
+        &args.out.join(noise_svg),
+        "PSNR against noise in C (Fig. 8a)",
+        ("σ / max C", "PSNR (dB)"),
+        &[("all reflectances".to_string(), noise_in_c.clone())],
+    )?;
+    let solver_rows: Vec<(String, f64, f64, f64)> = solvers
+        .iter()
+        .map(|s| {
+            (
+                s.solver.clone(),
+                s.seconds,
+                s.mean_objective,
+                s.max_difference_to_exact,
+            )
+        })
+        .collect();
+    let filter_names: Vec<String> = filters.iter().map(|s| s.to_string()).collect();
+    write_report(
+        &args.out,
+        &ReportInputs {
+            filters: &filter_names,
+            condition_number: cond,
+            size: args.size,
+            bands_nm: &centres,
+            colorchecker_band_psnr: &colorchecker.band_psnr,
+            colorchecker_psnr: colorchecker.psnr,
+            presets: &presets,
+            solvers: &solver_rows,
+            noise_in_c: &noise_in_c,
+            chart_svgs: &chart_svgs,
+            noise_svg,
+            seconds: total.elapsed().as_secs_f64(),
+        },
+    )?;
+    println!("\nreport: {}", args.out.join("report.html").display());
 
     println!(
         "\ndemo finished in {}",
@@ -508,10 +495,94 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             simulated_reference_psnr: sim_psnr,
             simulated_reference_ssim: sim_ssim,
             stereo_bad2: stereo.iter().map(|(n, b, _)| (n.to_string(), *b)).collect(),
+            light_fields: presets.clone(),
+            noise_in_c: noise_in_c.clone(),
         };
         let text = serde_json::to_string_pretty(&report)?;
         write_atomically(path, |w| w.write_all(text.as_bytes()))?;
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// Relative σ values of the noise added to C (Fig. 8a).
+const NOISE_IN_C: [f64; 7] = [0.0, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05];
+
+/// PSNR of `reflectances` reconstructed with C + N(0, (σ·max C)²) from noise-free
+/// measurements through the true curves, for each σ of [`NOISE_IN_C`].
+fn psnr_against_noise_in_c(
+    reflectances: &ResponseCurve,
+    responses: &EffectiveResponses,
+    c: &SensingMatrix,
+    seed: u64,
+) -> anyhow::Result<Vec<(f64, f64)>> {
+    let spectra = anaglyph_core::capture::spectra_on_grid(reflectances, responses)?;
+    let clean = anaglyph_core::capture::measure_spectra(&spectra, responses, c);
+    let rows = c.rows();
+    let white_response: Vec<f64> = (0..rows).map(|r| c.row(r).iter().sum()).collect();
+    let mut measured = clean;
+    anaglyph_core::demux::normalise_by_white(&mut measured, rows, &white_response, &white_response);
+    let bands = c.reported.count;
+    let centres = c.reported.wavelengths();
+    let mut truth = Vec::new();
+    for k in 0..reflectances.channel_count() {
+        truth.extend(reflectances.sample(
+            k,
+            &centres,
+            anaglyph_core::spectrum::Interpolation::Linear,
+        )?);
+    }
+    let peak = c.values().iter().cloned().fold(0.0, f64::max);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xC0FF_EE00);
+    let mut out = Vec::new();
+    for sigma in NOISE_IN_C {
+        let noisy: Vec<f64> = c
+            .values()
+            .iter()
+            .map(|&v| {
+                let gauss: f64 =
+                    rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+                v + sigma * peak * gauss
+            })
+            .collect();
+        let (estimate, _) = demultiplex(
+            &noisy,
+            rows,
+            &measured,
+            None,
+            c.reported_offset..c.reported_offset + bands,
+            &DemuxOptions::default(),
+        )?;
+        out.push((sigma, anaglyph_core::metrics::psnr(&truth, &estimate, 1.0)));
+    }
+    Ok(out)
+}
+
+/// The ColorChecker trial's spectra as four charts of six patches; returns their names.
+fn write_chart_spectra(
+    dir: &std::path::Path,
+    trial: &TrialResult,
+    chart: &ResponseCurve,
+    centres: &[f64],
+) -> anyhow::Result<Vec<String>> {
+    let bands = centres.len();
+    let mut names = Vec::new();
+    for group in 0..trial.samples.div_ceil(6) {
+        let probes: Vec<Probe> = (group * 6..((group + 1) * 6).min(trial.samples))
+            .map(|i| Probe {
+                label: chart.channel_names()[i].clone(),
+                estimate: trial.estimate[i * bands..(i + 1) * bands].to_vec(),
+                truth: Some(trial.truth[i * bands..(i + 1) * bands].to_vec()),
+            })
+            .collect();
+        let name = format!("colorchecker_{}.svg", group + 1);
+        plot_probe(
+            &dir.join(&name),
+            &format!("ColorChecker patches {}–{}", group * 6 + 1, (group + 1) * 6),
+            centres,
+            &probes,
+        )?;
+        names.push(name);
+    }
+    Ok(names)
 }

@@ -2,6 +2,8 @@
 
 mod calibrate_filter;
 mod demo;
+mod demo_light_field;
+mod demo_report;
 mod demux;
 mod demux_stream;
 mod eval;

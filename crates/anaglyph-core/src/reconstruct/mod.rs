@@ -22,7 +22,7 @@ pub use inputs::{
 };
 pub use output::{write_light_field, OutputOptions};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
-pub use probe_plot::{plot_probe, Probe};
+pub use probe_plot::{plot_probe, plot_series, Probe};
 
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::register::{

@@ -98,3 +98,75 @@ pub fn plot_probe(path: &Path, title: &str, centres: &[f64], probes: &[Probe]) -
     }
     write_atomically(path, |w| w.write_all(svg.as_bytes()))
 }
+
+/// A generic line chart (SVG): one polyline per `(label, points)` series, for the
+/// report's figures that are not spectra (PSNR against noise in C, Fig. 8a).
+pub fn plot_series(
+    path: &Path,
+    title: &str,
+    (x_label, y_label): (&str, &str),
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<()> {
+    let points = || {
+        series
+            .iter()
+            .flat_map(|(_, p)| p.iter())
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+    };
+    let (x_lo, x_hi) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(x, _)| {
+        (a.min(x), b.max(x))
+    });
+    let (y_lo, y_hi) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, y)| {
+        (a.min(y), b.max(y))
+    });
+    if !(x_hi > x_lo) || !(y_hi >= y_lo) {
+        return Err(Error::invalid(
+            "chart",
+            "needs at least two distinct finite x values",
+        ));
+    }
+    let pad = ((y_hi - y_lo) * 0.08).max(0.5);
+    let plot_err = |e: String| Error::invalid("chart", e);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (900, 540)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(e.to_string()))?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(56)
+            .build_cartesian_2d(x_lo..x_hi, (y_lo - pad)..(y_hi + pad))
+            .map_err(|e| plot_err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .draw()
+            .map_err(|e| plot_err(e.to_string()))?;
+        for (k, (label, pts)) in series.iter().enumerate() {
+            let colour = COLOURS[k % COLOURS.len()];
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter()
+                        .copied()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite()),
+                    colour.stroke_width(3),
+                ))
+                .map_err(|e| plot_err(e.to_string()))?
+                .label(label.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(3))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 12))
+            .draw()
+            .map_err(|e| plot_err(e.to_string()))?;
+        root.present().map_err(|e| plot_err(e.to_string()))?;
+    }
+    write_atomically(path, |w| w.write_all(svg.as_bytes()))
+}

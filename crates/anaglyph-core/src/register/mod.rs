@@ -71,6 +71,10 @@ pub enum RegistrationMode {
     MultiBaseline,
 }
 
+/// The mode `anaglyph reconstruct` and the demo use unless told otherwise (measured in
+/// `examples/light_field_quality.rs`; see the README).
+pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseline;
+
 /// What registration needs besides the images.
 #[derive(Debug, Clone, Copy)]
 pub struct RegistrationSettings<'a> {
