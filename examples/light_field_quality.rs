@@ -68,6 +68,26 @@ fn main() -> anyhow::Result<()> {
         for mode in &modes {
             let (registration_mode, given) = match mode.as_str() {
                 "truth" => (RegistrationMode::Pairwise, Some(truth_maps.clone())),
+                // The truth with seeded Gaussian errors of σ px (how much subpixel error costs).
+                jittered if jittered.starts_with("truth+") => {
+                    let sigma: f32 = jittered["truth+".len()..].parse()?;
+                    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+                    let mut gauss = move || {
+                        let mut uniform = || {
+                            state ^= state << 13;
+                            state ^= state >> 7;
+                            state ^= state << 17;
+                            (state >> 11) as f32 / (1u64 << 53) as f32
+                        };
+                        let (u, v) = (uniform().max(1e-12), uniform());
+                        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+                    };
+                    let maps = truth_maps
+                        .iter()
+                        .map(|m| m.iter().map(|&d| d + sigma * gauss()).collect())
+                        .collect();
+                    (RegistrationMode::Pairwise, Some(maps))
+                }
                 "pairwise" => (RegistrationMode::Pairwise, None),
                 "multi-baseline" => (RegistrationMode::MultiBaseline, None),
                 other => anyhow::bail!("unknown mode {other}"),

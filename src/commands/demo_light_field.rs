@@ -166,8 +166,11 @@ pub fn run_presets(
         };
         write_light_field(&out.join(name).join("recon"), &rig, &field, &options)?;
         let truth_map = &simulation.views[0].disparity;
-        let max_true = truth_map
+        // The scale of the reconstruction's own previews, so that colours compare.
+        let max_true = field
+            .views
             .iter()
+            .flat_map(|v| v.disparity.iter())
             .filter(|d| d.is_finite())
             .fold(0.0f32, |a, &b| a.max(b));
         write_disparity_preview(

@@ -34,7 +34,8 @@ table{border-collapse:collapse;margin:1em 0;font-size:.9em}td,th{border:1px soli
 th{background:#f3f3f6}td:first-child,th:first-child{text-align:left}\
 .grid{display:grid;grid-template-columns:repeat(4,1fr);gap:8px}.grid figure{margin:0}\
 figure img,figure object{width:100%;border:1px solid #ddd}figcaption{font-size:.8em;color:#555;text-align:center}\
-.two{display:grid;grid-template-columns:1fr 1fr;gap:12px}.note{color:#555;font-size:.9em}";
+.two{display:grid;grid-template-columns:1fr 1fr;gap:12px}.one{max-width:820px;margin:0 auto}.note{color:#555;font-size:.9em}\
+.bands{overflow-x:auto}.bands table{font-size:.75em}.bands td,.bands th{padding:.2em .35em}";
 
 fn figure(src: &str, caption: &str) -> String {
     format!(
@@ -61,7 +62,7 @@ pub fn write_report(dir: &Path, r: &ReportInputs<'_>) -> anyhow::Result<()> {
     }
     writeln!(h, "</table>")?;
     if let Some(p) = r.presets.first() {
-        writeln!(h, "<p>Per band, view r0c0 of <em>{}</em> (estimated disparities):</p><table><tr><th>nm</th>", p.name)?;
+        writeln!(h, "<p>Per band, view r0c0 of <em>{}</em> (estimated disparities):</p><div class=\"bands\"><table><tr><th>nm</th>", p.name)?;
         for l in r.bands_nm {
             write!(h, "<th>{l:.0}</th>")?;
         }
@@ -73,7 +74,7 @@ pub fn write_report(dir: &Path, r: &ReportInputs<'_>) -> anyhow::Result<()> {
         for v in &p.estimated.reference.band_ssim {
             write!(h, "<td>{v:.2}</td>")?;
         }
-        writeln!(h, "</tr></table>")?;
+        writeln!(h, "</tr></table></div>")?;
     }
 
     for p in r.presets {
@@ -119,14 +120,14 @@ pub fn write_report(dir: &Path, r: &ReportInputs<'_>) -> anyhow::Result<()> {
             )?;
         }
         writeln!(h, "</div>")?;
-        writeln!(h, "<div class=\"two\">{}</div>", figure(&format!("{n}/recon/probes/r0c0.svg"), "spectra at three pixels of r0c0: reconstructed (thick) and true (thin), as Fig. 11"))?;
+        writeln!(h, "<div class=\"one\">{}</div>", figure(&format!("{n}/recon/probes/r0c0.svg"), "spectra at three pixels of r0c0: reconstructed (thick) and true (thin), as Fig. 11"))?;
     }
 
     writeln!(h, "<h2>ColorChecker spectra (Fig. 10)</h2><p>The 24 patches of the measured ColorChecker (N. Ohta) rendered at 1 nm through the rig with sensor noise and demultiplexed (perfect registration): reconstructed (thick) against measured (thin). Average PSNR {:.2} dB.</p><div class=\"two\">", r.colorchecker_psnr)?;
     for svg in r.chart_svgs {
         write!(h, "{}", figure(svg, "ColorChecker patches"))?;
     }
-    writeln!(h, "</div><table><tr><th>nm</th>")?;
+    writeln!(h, "</div><div class=\"bands\"><table><tr><th>nm</th>")?;
     for l in r.bands_nm {
         write!(h, "<th>{l:.0}</th>")?;
     }
@@ -134,7 +135,7 @@ pub fn write_report(dir: &Path, r: &ReportInputs<'_>) -> anyhow::Result<()> {
     for v in r.colorchecker_band_psnr {
         write!(h, "<td>{v:.1}</td>")?;
     }
-    writeln!(h, "</tr></table>")?;
+    writeln!(h, "</tr></table></div>")?;
 
     writeln!(h, "<h2>Robustness to errors in C (Fig. 8a)</h2><div class=\"two\">{}<table><tr><th>σ (× max C)</th><th>PSNR (dB)</th></tr>", figure(r.noise_svg, "PSNR against Gaussian noise added to C"))?;
     for (s, p) in r.noise_in_c {

@@ -191,6 +191,57 @@ pub fn fill_from_background(disparity: &mut [f32], width: usize) {
     }
 }
 
+/// Window radius of [`smooth_within_surfaces`], pixels.
+pub const SURFACE_SMOOTHING_RADIUS: usize = 4;
+/// Spatial Gaussian σ of [`smooth_within_surfaces`], pixels.
+pub const SURFACE_SMOOTHING_SIGMA: f32 = 2.5;
+/// Neighbours whose disparity differs by more than this (px) belong to another surface.
+pub const SURFACE_TOLERANCE_PX: f32 = 1.0;
+
+/// Averages each disparity with the neighbours on the same surface (within
+/// [`SURFACE_TOLERANCE_PX`] of it), Gaussian-weighted: a bilateral filter whose range term
+/// is the disparity itself. Warping needs disparities accurate to a fraction of a pixel
+/// (an error of σ = 0.25 px costs about 3.6 dB of reflectance PSNR on the tabletop); the
+/// winner-take-all and parabola leave independent per-pixel errors that this averages out,
+/// while depth edges, where the disparity jumps, are kept. NaN stays NaN.
+pub fn smooth_within_surfaces(disparity: &[f32], width: usize, height: usize) -> Vec<f32> {
+    use rayon::prelude::*;
+    let r = SURFACE_SMOOTHING_RADIUS as i64;
+    let side = (2 * r + 1) as usize;
+    let weights: Vec<f32> = (-r..=r)
+        .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+        .map(|(dx, dy)| {
+            (-((dx * dx + dy * dy) as f32) / (2.0 * SURFACE_SMOOTHING_SIGMA.powi(2))).exp()
+        })
+        .collect();
+    let mut out = vec![0f32; width * height];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (x, value) in row.iter_mut().enumerate() {
+            let centre = disparity[y * width + x];
+            if !centre.is_finite() {
+                *value = centre;
+                continue;
+            }
+            let (mut sum, mut norm) = (0f32, 0f32);
+            let (y0, y1) = ((y as i64 - r).max(0), (y as i64 + r).min(height as i64 - 1));
+            let (x0, x1) = ((x as i64 - r).max(0), (x as i64 + r).min(width as i64 - 1));
+            for yy in y0..=y1 {
+                let weight_row = &weights[((yy - y as i64 + r) as usize) * side..][..side];
+                for xx in x0..=x1 {
+                    let d = disparity[yy as usize * width + xx as usize];
+                    if (d - centre).abs() <= SURFACE_TOLERANCE_PX {
+                        let k = weight_row[(xx - x as i64 + r) as usize];
+                        sum += k * d;
+                        norm += k;
+                    }
+                }
+            }
+            *value = sum / norm;
+        }
+    });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,6 +257,39 @@ mod tests {
         let (dx, dy) = g.shift((1, 3), (0, 1));
         assert_eq!(dx, 2.0);
         assert!((dy - 5.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn surface_smoothing_removes_noise_and_keeps_depth_edges() {
+        let (w, h) = (40, 20);
+        // A slanted plane (left) and a near square (right), with ±0.3 px alternating noise.
+        let clean: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % w < 20 {
+                    10.0 + 0.05 * (i % w) as f32
+                } else {
+                    30.0
+                }
+            })
+            .collect();
+        let noisy: Vec<f32> = clean
+            .iter()
+            .enumerate()
+            .map(|(i, d)| d + if (i + i / w) % 2 == 0 { 0.3 } else { -0.3 })
+            .collect();
+        let smooth = smooth_within_surfaces(&noisy, w, h);
+        for y in 5..15 {
+            for x in 5..35 {
+                let i = y * w + x;
+                assert!(
+                    (smooth[i] - clean[i]).abs() < 0.08,
+                    "({x}, {y}): {}",
+                    smooth[i]
+                );
+            }
+        }
+        // The edge between 19 and 20 stays sharp.
+        assert!(smooth[10 * w + 19] < 11.5 && smooth[10 * w + 20] > 29.0);
     }
 
     #[test]

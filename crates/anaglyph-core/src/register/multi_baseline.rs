@@ -15,7 +15,9 @@
 //! background side and a 5×5 median smooths the result.
 
 use super::RegistrationSettings;
-use super::{fill_from_background, find, ArrayGeometry, GridImage, Registration};
+use super::{
+    fill_from_background, find, smooth_within_surfaces, ArrayGeometry, GridImage, Registration,
+};
 use crate::stereo::{
     median_filter, semi_global_matching, subpixel_disparity, tower_features, unit_range,
     winner_take_all, CostVolume, FeatureMap, GreyImage, MatchSettings, MatchingCost,
@@ -299,7 +301,7 @@ pub fn multi_baseline_disparities(
         .map(|i| {
             let mut checked = cross_check(&raw, &positions, images, geometry, i, w, h);
             fill_from_background(&mut checked, w);
-            median_filter(&checked, w, h, 2)
+            smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
         })
         .collect();
     timings.push((
