@@ -3,7 +3,8 @@
 //!
 //! A camera's measurement of a reference pixel with disparity d is read at
 //! `(x, y) + d · shift` by bilinear interpolation. It is **visible** only if that camera's
-//! own disparity map agrees there within [`CONSISTENCY_PX`] (depth order: a nearer surface
+//! own disparity map agrees within [`CONSISTENCY_PX`] at every contributing tap, so that no
+//! value is interpolated across a depth edge (depth order: a nearer surface
 //! in front of the point has a larger disparity; a farther one means the reference pixel is
 //! wrong or the camera looks past an edge), the position lies inside the image, and no
 //! interpolation tap is invalid (saturated). Anything else is NaN: masked, never invented.
@@ -143,11 +144,6 @@ fn warp_one(
     if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
         return false;
     }
-    // Depth order and consistency at the nearest source pixel.
-    let nearest = (py.round() as usize) * w + px.round() as usize;
-    if !((disparity[nearest] - d).abs() <= CONSISTENCY_PX) {
-        return false;
-    }
     let (x0, y0) = (
         (px.floor() as usize).min(w - 2),
         (py.floor() as usize).min(h - 2),
@@ -159,6 +155,14 @@ fn warp_one(
         ((y0 + 1) * w + x0, (1.0 - fx) * fy),
         ((y0 + 1) * w + x0 + 1, fx * fy),
     ];
+    // Depth order and consistency at every tap that contributes: interpolating across a
+    // depth edge would mix the two surfaces' spectra.
+    let consistent = taps
+        .iter()
+        .all(|&(p, k)| k <= 0.0 || (disparity[p] - d).abs() <= CONSISTENCY_PX);
+    if !consistent {
+        return false;
+    }
     for (c, out) in dst.iter_mut().enumerate() {
         let mut value = 0.0;
         for &(p, k) in &taps {
