@@ -536,6 +536,10 @@ pub struct ReconstructArgs {
     /// Folder of white-board captures named r{row}c{col}.png|tif (default: the rig's `white`).
     #[arg(long)]
     pub white: Option<PathBuf>,
+    /// Folder of OpenCV FileStorage calibrations named r{row}c{col}.json|yml|yaml
+    /// (default: the rig's `calibration` paths); with them the array is rectified first.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
     /// Views to reconstruct: `all` or a list like r0c0,r1c2.
     #[arg(long, default_value = "all", value_parser = parse_views)]
     pub views: ViewList,

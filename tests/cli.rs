@@ -695,6 +695,73 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
 }
 
 #[test]
+fn reconstruct_rectifies_an_array_with_calibrated_rotations() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--size",
+            "96x72",
+            "--pose-jitter",
+            "0.8,0",
+            "--out",
+            "tilt",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rig = std::fs::read_to_string(d.join("tilt/rig.toml")).unwrap();
+    assert_eq!(rig.matches("calibration = ").count(), 8, "{rig}");
+    let reconstruct = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "reconstruct",
+            "--rig",
+            "tilt/rig.toml",
+            "--out",
+            out,
+            "--views",
+            "r0c0",
+            "--true-disparity",
+            "tilt",
+        ];
+        args.extend(extra);
+        anaglyph(&args, d)
+    };
+    let o = reconstruct("rec", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("rec/manifest.json")).unwrap())
+            .unwrap();
+    let cameras = manifest["rectification"]["cameras"].as_array().unwrap();
+    assert_eq!(cameras.len(), 8);
+    assert!(cameras
+        .iter()
+        .all(|c| c["max_correction_px"].as_f64().unwrap() > 0.1));
+    assert!(manifest["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|t| t[0] == "rectification"));
+    // The same calibrations from a folder; a folder without them, and a rig where one
+    // camera lost its calibration, are refused.
+    assert!(reconstruct("rec2", &["--calibration", "tilt/calibration"])
+        .status
+        .success());
+    assert_clean_failure(
+        &reconstruct("rec3", &["--calibration", "tilt/captures"]),
+        "no calibration r0c0.json",
+    );
+    let partial = rig.replacen("calibration = \"calibration/r1c2.json\"\n", "", 1);
+    assert_ne!(partial, rig);
+    std::fs::write(d.join("tilt/rig.toml"), partial).unwrap();
+    assert_clean_failure(&reconstruct("rec4", &[]), "r1c2 have none");
+    assert!(!d.join("rec4/manifest.json").exists());
+}
+
+#[test]
 fn reconstruct_rejects_missing_or_mismatched_captures_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -75,7 +75,12 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         }
         rig.illuminant = Some(light);
     }
-    let captures = ArrayCaptures::load(&rig, args.captures.as_deref(), args.white.as_deref())?;
+    let captures = ArrayCaptures::load(
+        &rig,
+        args.captures.as_deref(),
+        args.white.as_deref(),
+        args.calibration.as_deref(),
+    )?;
     let (w, h) = (captures.width, captures.height);
     let given = args
         .true_disparity
@@ -110,6 +115,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let bar = stage_bar();
     let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
         bar.set_message(match stage {
+            Stage::Rectification => "rectification",
             Stage::Registration => "registration",
             Stage::Warping => "warping",
             Stage::Demultiplexing => "demultiplexing",
@@ -122,6 +128,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "rig": args.rig.display().to_string(),
         "captures": args.captures.as_ref().map(|p| p.display().to_string()),
         "white": args.white.as_ref().map(|p| p.display().to_string()),
+        "calibration": args.calibration.as_ref().map(|p| p.display().to_string()),
         "illuminant": args.illuminant,
         "registration": if settings.given_disparities.is_some() { "true disparities".to_string() } else { format!("{mode:?}") },
         "true_disparity": args.true_disparity.as_ref().map(|p| p.display().to_string()),

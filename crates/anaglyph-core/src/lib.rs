@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! spectrum (curves) + filters + rig -> sensing matrix C -> capture (forward model, noise)
-//! scene -> simulate -> captures -> stereo -> register (disparity per view, warp)
+//! scene -> simulate -> captures -> rectify -> stereo -> register (disparity per view, warp)
 //!   -> demux (per-pixel solve of Eq. 6) -> reconstruct (the light field) -> metrics
 //! io for the file formats at the edges
 //! ```
@@ -41,6 +41,7 @@ pub mod filters;
 pub mod io;
 pub mod metrics;
 pub mod reconstruct;
+pub mod rectify;
 pub mod register;
 pub mod rig;
 pub mod scene;

@@ -8,8 +8,10 @@
 //! illuminant, so demultiplexing returns reflectance (the paper's white-board step).
 //! Without one, the camera's exposure metadata is used (`g_k = exposure`), which needs C
 //! built with the scene's illuminant. Values at or above the saturation level are NaN.
+//! Each camera may also carry its calibrated geometry, for rectification.
 
 use crate::io::{read_linear_image, LinearImage};
+use crate::rectify::CameraModel;
 use crate::register::NormalisedView;
 use crate::rig::{Rig, SensingMatrix};
 use crate::simulate::Simulation;
@@ -23,6 +25,8 @@ use std::path::{Path, PathBuf};
 pub const UNEVEN_WHITE_WARNING: f64 = 0.05;
 /// Picture extensions looked for in capture folders.
 const EXTENSIONS: [&str; 3] = ["png", "tif", "tiff"];
+/// Calibration extensions looked for in calibration folders.
+const CALIBRATION_EXTENSIONS: [&str; 3] = ["json", "yml", "yaml"];
 
 /// One camera's pictures.
 #[derive(Debug, Clone)]
@@ -33,6 +37,8 @@ pub struct CameraCapture {
     pub white: Option<LinearImage>,
     /// Exposure metadata (see [`crate::rig::CameraEntry::exposure`]).
     pub exposure: Option<f64>,
+    /// Calibrated geometry; when the cameras have one, reconstruction rectifies first.
+    pub calibration: Option<CameraModel>,
 }
 
 /// The captures of the whole array, in the rig's camera order.
@@ -58,29 +64,39 @@ pub struct CameraCalibration {
     pub saturated_values: usize,
 }
 
-/// `DIR/r{row}c{col}.{png,tif,tiff}`, the first that exists.
-fn find_in(dir: &Path, row: usize, col: usize) -> Result<PathBuf> {
-    EXTENSIONS
+/// `DIR/r{row}c{col}.{ext}` for the first of `extensions` that exists; `what` names the
+/// file in the error.
+fn find_in(dir: &Path, row: usize, col: usize, extensions: &[&str], what: &str) -> Result<PathBuf> {
+    extensions
         .iter()
         .map(|e| dir.join(format!("r{row}c{col}.{e}")))
         .find(|p| p.is_file())
         .ok_or_else(|| {
             Error::invalid(
                 dir.display().to_string(),
-                format!("no capture r{row}c{col}.png, .tif or .tiff for camera r{row}c{col}"),
+                format!(
+                    "no {what} r{row}c{col}.{} for camera r{row}c{col}",
+                    extensions.join(", .")
+                ),
             )
         })
 }
 
 impl ArrayCaptures {
-    /// Reads every camera's capture (and white board, where there is one): from `captures`
-    /// / `whites` folders when given, else from the paths in the rig file.
-    pub fn load(rig: &Rig, captures: Option<&Path>, whites: Option<&Path>) -> Result<Self> {
+    /// Reads every camera's capture (and white board and calibration, where there is
+    /// one): from `captures` / `whites` / `calibrations` folders when given, else from the
+    /// paths in the rig file.
+    pub fn load(
+        rig: &Rig,
+        captures: Option<&Path>,
+        whites: Option<&Path>,
+        calibrations: Option<&Path>,
+    ) -> Result<Self> {
         let mut cameras = Vec::with_capacity(rig.cameras.len());
         for cam in &rig.cameras {
             let name = format!("camera r{}c{}", cam.row, cam.col);
             let capture_path = match captures {
-                Some(dir) => find_in(dir, cam.row, cam.col)?,
+                Some(dir) => find_in(dir, cam.row, cam.col, &EXTENSIONS, "capture")?,
                 None => cam.image.clone().ok_or_else(|| {
                     Error::invalid(
                         &name,
@@ -89,9 +105,23 @@ impl ArrayCaptures {
                 })?,
             };
             let white_path = match whites {
-                Some(dir) => Some(find_in(dir, cam.row, cam.col)?),
+                Some(dir) => Some(find_in(dir, cam.row, cam.col, &EXTENSIONS, "white board")?),
                 None => cam.white.clone(),
             };
+            let calibration_path = match calibrations {
+                Some(dir) => Some(find_in(
+                    dir,
+                    cam.row,
+                    cam.col,
+                    &CALIBRATION_EXTENSIONS,
+                    "calibration",
+                )?),
+                None => cam.calibration.clone(),
+            };
+            let calibration = calibration_path
+                .as_deref()
+                .map(CameraModel::load)
+                .transpose()?;
             let capture = read_linear_image(&capture_path)?;
             let white = white_path.as_deref().map(read_linear_image).transpose()?;
             let channels = cam.sensor.channel_count();
@@ -115,6 +145,7 @@ impl ArrayCaptures {
                 capture,
                 white,
                 exposure: cam.exposure,
+                calibration,
             });
         }
         Self::from_cameras(cameras)
@@ -171,19 +202,23 @@ impl ArrayCaptures {
                     capture: image(&v.capture, v.channels),
                     white: Some(image(&v.white, v.channels)),
                     exposure: Some(v.exposure),
+                    calibration: simulation
+                        .settings
+                        .pose_jitter
+                        .map(|_| CameraModel::from_pinhole(&v.camera)),
                 })
                 .collect(),
         }
     }
 
-    /// Each capture's luminance (Rec. 709 weights for RGB), the matcher's input.
+    /// Each capture's luminance (Rec. 709 weights for RGB), the matcher's input. Pixels
+    /// without a value (NaN: outside a rectified camera's frame) take the nearest value of
+    /// their row, so that matching costs stay finite.
     pub fn grey_images(&self) -> Vec<GreyImage> {
         self.cameras
             .iter()
-            .map(|cam| GreyImage {
-                width: self.width,
-                height: self.height,
-                data: cam
+            .map(|cam| {
+                let mut data: Vec<f32> = cam
                     .capture
                     .data
                     .chunks_exact(cam.capture.channels)
@@ -191,9 +226,47 @@ impl ArrayCaptures {
                         [r, g, b] => 0.2126 * r + 0.7152 * g + 0.0722 * b,
                         _ => p[0],
                     })
-                    .collect(),
+                    .collect();
+                for row in data.chunks_exact_mut(self.width) {
+                    fill_from_nearest(row);
+                }
+                GreyImage {
+                    width: self.width,
+                    height: self.height,
+                    data,
+                }
             })
             .collect()
+    }
+}
+
+/// Replaces the NaNs of `row` by the nearest finite value (0 if there is none).
+fn fill_from_nearest(row: &mut [f32]) {
+    if row.iter().all(|v| v.is_finite()) {
+        return;
+    }
+    let known: Vec<usize> = (0..row.len()).filter(|&i| row[i].is_finite()).collect();
+    if known.is_empty() {
+        row.fill(0.0);
+        return;
+    }
+    let mut k = 0; // first known index at or after i
+    for i in 0..row.len() {
+        while k < known.len() && known[k] < i {
+            k += 1;
+        }
+        if row[i].is_finite() {
+            continue;
+        }
+        let before = k.checked_sub(1).map(|j| known[j]);
+        let after = known.get(k).copied();
+        let source = match (before, after) {
+            (Some(b), Some(a)) if i - b <= a - i => b,
+            (_, Some(a)) => a,
+            (Some(b), None) => b,
+            (None, None) => continue,
+        };
+        row[i] = row[source];
     }
 }
 
@@ -291,9 +364,11 @@ pub fn calibrate(
             .iter()
             .enumerate()
             .map(|(i, &v)| {
-                if v >= saturation_level || !v.is_finite() {
+                if v >= saturation_level {
                     saturated += 1;
                     f32::NAN
+                } else if !v.is_finite() {
+                    f32::NAN // not measured (outside a rectified frame)
                 } else {
                     (v as f64 / gain[i % ch]) as f32
                 }
@@ -318,4 +393,20 @@ pub fn calibrate(
         first_row += ch;
     }
     Ok((views, records))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fill_from_nearest;
+
+    #[test]
+    fn missing_values_take_the_nearest_value_of_their_row() {
+        let nan = f32::NAN;
+        let mut row = [nan, nan, 1.0, nan, nan, nan, 5.0, nan];
+        fill_from_nearest(&mut row);
+        assert_eq!(row, [1.0, 1.0, 1.0, 1.0, 1.0, 5.0, 5.0, 5.0]);
+        let mut empty = [nan; 3];
+        fill_from_nearest(&mut empty);
+        assert_eq!(empty, [0.0; 3]);
+    }
 }

@@ -2,13 +2,14 @@
 //! sections 2.1, 3.3, 2.3):
 //!
 //! ```text
-//! captures + white boards -> calibrate (C's units, saturation masked)
+//! captures + white boards -> rectify (when the cameras carry calibrations)
+//!   -> calibrate (C's units, saturation masked)
 //!   -> register (a disparity map per view) -> warp every capture to each requested view
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
 //! ```
 //!
-//! In: a loaded [`Rig`] and its [`ArrayCaptures`] (rectified; see `rectify` for arrays that
-//! are not). Out: a [`LightField`] with a reflectance cube and disparity map per requested
+//! In: a loaded [`Rig`] and its [`ArrayCaptures`] (already rectified, or carrying each
+//! camera's calibration for [`crate::rectify`]). Out: a [`LightField`] with a reflectance cube and disparity map per requested
 //! view, per-camera calibration, visibility, per-stage timings and warnings;
 //! [`write_light_field`] writes the fixed output layout.
 
@@ -25,6 +26,7 @@ pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
 
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
+use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
 use crate::register::{
     gather_measurements, register_views, ArrayGeometry, GridImage, RegistrationSettings, Visibility,
 };
@@ -41,6 +43,7 @@ pub const SATURATION_WARNING: f64 = 0.01;
 /// The stages reported to a progress callback.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
+    Rectification,
     Registration,
     Warping,
     Demultiplexing,
@@ -84,6 +87,8 @@ pub struct LightField {
     pub bands: Vec<f64>,
     pub views: Vec<ReconstructedView>,
     pub calibration: Vec<CameraCalibration>,
+    /// How the array was rectified (None: the captures were already rectified).
+    pub rectification: Option<Rectification>,
     pub condition_number: f64,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
@@ -133,6 +138,17 @@ pub fn reconstruct(
     };
     let mut timings = Vec::new();
     let mut warnings = Vec::new();
+    let clock = Instant::now();
+    let rectified = rectify_array(rig, captures, settings.saturation_level, progress)?;
+    let (captures, rectification) = match rectified {
+        Some((rectified_captures, plan, notes)) => {
+            warnings.extend(notes);
+            timings.push(("rectification".to_string(), clock.elapsed().as_secs_f64()));
+            (std::borrow::Cow::Owned(rectified_captures), Some(plan))
+        }
+        None => (std::borrow::Cow::Borrowed(captures), None),
+    };
+    let captures = captures.as_ref();
     let clock = Instant::now();
 
     let sensing = SensingMatrix::of_rig(rig)?;
@@ -261,10 +277,106 @@ pub fn reconstruct(
         bands: bands.wavelengths(),
         views: reconstructed,
         calibration,
+        rectification,
         condition_number,
         timings,
         warnings,
     })
+}
+
+/// Rectifies `captures` when their cameras carry calibrations (all or none must): returns
+/// the rectified captures, the plan and warnings about what rectification cannot correct.
+fn rectify_array(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    saturation_level: f32,
+    progress: &(dyn Fn(Stage, usize, usize) + Sync),
+) -> Result<Option<(ArrayCaptures, Rectification, Vec<String>)>> {
+    let (with, without): (Vec<&CameraCapture>, Vec<&CameraCapture>) = captures
+        .cameras
+        .iter()
+        .partition(|c| c.calibration.is_some());
+    if with.is_empty() {
+        return Ok(None);
+    }
+    if !without.is_empty() {
+        let names = |list: &[&CameraCapture]| {
+            list.iter()
+                .map(|c| format!("r{}c{}", c.row, c.col))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        return Err(Error::invalid(
+            "rectification",
+            format!(
+                "cameras {} have a calibration but {} have none: give every camera one (or \
+                 none, for captures that are already rectified)",
+                names(&with),
+                names(&without)
+            ),
+        ));
+    }
+    let models = captures
+        .cameras
+        .iter()
+        .filter_map(|c| c.calibration.clone().map(|m| (c.row, c.col, m)))
+        .collect();
+    let plan = Rectification::plan(models, captures.width, captures.height)?;
+    let total = captures.cameras.len();
+    let mut cameras = Vec::with_capacity(total);
+    for (k, cam) in captures.cameras.iter().enumerate() {
+        cameras.push(CameraCapture {
+            capture: plan.resample(k, &cam.capture, saturation_level)?,
+            ..cam.clone()
+        });
+        progress(Stage::Rectification, k + 1, total);
+    }
+    let mut warnings = Vec::new();
+    let offset = plan.worst_grid_offset();
+    if offset > GRID_OFFSET_WARNING {
+        warnings.push(format!(
+            "rectification: an optical centre lies {:.1} % of the baseline off the camera \
+             grid; no image warp removes that parallax (about that fraction of each disparity)",
+            100.0 * offset
+        ));
+    }
+    let [bx, by] = plan.baseline_mm;
+    let (rig_bx, rig_by) = (
+        rig.file.baseline_mm.horizontal,
+        rig.file.baseline_mm.vertical,
+    );
+    if bx > 0.0 && by > 0.0 && rig_bx > 0.0 && rig_by > 0.0 {
+        let ratio = (by / bx) / (rig_by / rig_bx);
+        if (ratio - 1.0).abs() > GRID_OFFSET_WARNING {
+            warnings.push(format!(
+                "rectification: the calibrated baselines are {bx:.2} x {by:.2} but the rig \
+                 says {rig_bx} x {rig_by}; registration uses the rig's ratio"
+            ));
+        }
+    }
+    let cropped: f64 = cameras
+        .iter()
+        .map(|c| {
+            c.capture.data.iter().filter(|v| v.is_nan()).count() as f64
+                / c.capture.data.len().max(1) as f64
+        })
+        .fold(0.0, f64::max);
+    if cropped > SATURATION_WARNING {
+        warnings.push(format!(
+            "rectification: up to {:.1} % of a camera's rectified frame lies outside its \
+             capture (not measured)",
+            100.0 * cropped
+        ));
+    }
+    Ok(Some((
+        ArrayCaptures {
+            width: captures.width,
+            height: captures.height,
+            cameras,
+        },
+        plan,
+        warnings,
+    )))
 }
 
 /// The result of [`reconstruct`] as JSON-friendly records (everything but the images).

@@ -8,7 +8,8 @@
 //! OUT/preview/r{row}c{col}_pseudo.png    through the camera's RGB curves (the paper)
 //! OUT/preview/r{row}c{col}_srgb.png      CIE 1931 under D65
 //! OUT/probes/r{row}c{col}.svg            spectra at the --probe pixels (with truth if known)
-//! OUT/manifest.json                      inputs, parameters, calibration, visibility,
+//! OUT/manifest.json                      inputs, parameters, calibration, rectification,
+//!                                        visibility,
 //!                                        per-stage timings, warnings, files
 //! ```
 
@@ -43,6 +44,7 @@ struct Manifest<'a> {
     bands_nm: &'a [f64],
     condition_number: f64,
     calibration: &'a [super::CameraCalibration],
+    rectification: Option<&'a crate::rectify::Rectification>,
     views: Vec<super::ViewSummary>,
     timings: Vec<(String, f64)>,
     warnings: &'a [String],
@@ -179,6 +181,7 @@ pub fn write_light_field(
         bands_nm: &field.bands,
         condition_number: field.condition_number,
         calibration: &field.calibration,
+        rectification: field.rectification.as_ref(),
         views: field.views.iter().map(|v| v.summary()).collect(),
         timings,
         warnings: &field.warnings,

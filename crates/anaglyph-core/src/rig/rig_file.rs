@@ -94,6 +94,10 @@ pub struct CameraEntry {
     /// normalisation); used when no white board is given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure: Option<f64>,
+    /// OpenCV FileStorage calibration (.json/.yml: intrinsics, distortion, R, t); when the
+    /// cameras have one, reconstruction rectifies the array first.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<PathBuf>,
 }
 
 /// The TOML document.
@@ -134,6 +138,8 @@ pub struct Camera {
     pub white: Option<PathBuf>,
     /// Exposure metadata (see [`CameraEntry::exposure`]).
     pub exposure: Option<f64>,
+    /// Calibration file (see [`CameraEntry::calibration`]).
+    pub calibration: Option<PathBuf>,
 }
 
 /// A loaded, validated rig: cameras in row-major order.
@@ -329,6 +335,7 @@ impl Rig {
                 image: resolve_path(&e.image),
                 white: resolve_path(&e.white),
                 exposure: e.exposure,
+                calibration: resolve_path(&e.calibration),
                 filter,
                 sensor,
             });
@@ -368,6 +375,7 @@ impl Rig {
                 image: None,
                 white: None,
                 exposure: None,
+                calibration: None,
             })
             .collect();
         RigFile {

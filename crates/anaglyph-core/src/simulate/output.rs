@@ -13,13 +13,15 @@
 //! DIR/calibration/r{row}c{col}.json     the capturing camera in OpenCV FileStorage JSON:
 //!                                       camera_matrix, distortion_coefficients (zero),
 //!                                       rotation_matrix and translation_vector (world to
-//!                                       camera, mm; world = ideal camera r0c0)
+//!                                       camera, mm; world = ideal camera r0c0); named in
+//!                                       rig.toml when poses are jittered
 //! ```
 
 use super::Simulation;
 use crate::io::{
     write_atomically, write_envi, write_pfm, write_png16, EnviCube, LinearImage, PfmImage,
 };
+use crate::rectify::CameraModel;
 use crate::rig::Rig;
 use crate::scene::SceneFile;
 use crate::{Error, Result};
@@ -49,40 +51,6 @@ struct Manifest<'a> {
     bands_nm: &'a [f64],
     views: Vec<ViewRecord>,
     seconds: f64,
-}
-
-/// A 3×3 or 3×1 matrix in OpenCV FileStorage JSON form.
-fn opencv_matrix(rows: usize, cols: usize, data: &[f64]) -> serde_json::Value {
-    serde_json::json!({ "type_id": "opencv-matrix", "rows": rows, "cols": cols, "dt": "d", "data": data })
-}
-
-/// A camera's intrinsics and world-to-camera pose in OpenCV FileStorage JSON.
-fn opencv_calibration(camera: &crate::scene::PinholeCamera) -> String {
-    let f = camera.focal_px;
-    let (cx, cy) = (
-        0.5 * camera.width as f64 - 0.5,
-        0.5 * camera.height as f64 - 0.5,
-    );
-    let r = &camera.rotation;
-    // Camera-to-world rows r[i]; world-to-camera is the transpose.
-    let rt = [
-        r[0].x, r[1].x, r[2].x, r[0].y, r[1].y, r[2].y, r[0].z, r[1].z, r[2].z,
-    ];
-    let c = camera.centre;
-    let t = [
-        -(rt[0] * c.x + rt[1] * c.y + rt[2] * c.z),
-        -(rt[3] * c.x + rt[4] * c.y + rt[5] * c.z),
-        -(rt[6] * c.x + rt[7] * c.y + rt[8] * c.z),
-    ];
-    let value = serde_json::json!({
-        "image_width": camera.width,
-        "image_height": camera.height,
-        "camera_matrix": opencv_matrix(3, 3, &[f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0]),
-        "distortion_coefficients": opencv_matrix(5, 1, &[0.0; 5]),
-        "rotation_matrix": opencv_matrix(3, 3, &rt),
-        "translation_vector": opencv_matrix(3, 1, &t),
-    });
-    serde_json::to_string_pretty(&value).unwrap_or_default()
 }
 
 fn create_dir(path: &Path) -> Result<()> {
@@ -148,6 +116,9 @@ pub fn write_simulation(
             entry.image = Some(PathBuf::from(&capture));
             entry.white = Some(PathBuf::from(&white));
             entry.exposure = Some(view.exposure);
+            if simulation.settings.pose_jitter.is_some() {
+                entry.calibration = Some(PathBuf::from(format!("calibration/{name}.json")));
+            }
         }
         let finite = view.disparity.iter().filter(|v| v.is_finite());
         let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
@@ -158,7 +129,7 @@ pub fn write_simulation(
         }
         files.push(dir.join(format!("truth/{name}.img")));
         let calibration = dir.join(format!("calibration/{name}.json"));
-        let text = opencv_calibration(&view.camera);
+        let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
         write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
         files.push(calibration);
         records.push(ViewRecord {

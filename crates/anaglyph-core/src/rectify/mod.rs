@@ -1,0 +1,480 @@
+//! Rectification, the first geometric stage of reconstruction: the captures of an array
+//! whose cameras are not exactly parallel are resampled onto one common image plane
+//! (Kang et al. 2008 style), so that registration can search along rows and columns.
+//!
+//! ```text
+//! calibrations (OpenCV FileStorage: K, distortion, R, t)
+//!   -> fit the optical centres to the rig's rows × cols grid (O + c·u + r·v)
+//!   -> common orientation: x along u, y along v (orthogonalised), z = x × y
+//!   -> common intrinsics: mean focal length, centred principal point, no distortion
+//!   -> per camera and rectified pixel: world direction -> distorted source position,
+//!      one bicubic resampling (outside the source frame: NaN, i.e. not measured)
+//! ```
+//!
+//! Rotations, intrinsics and lens distortion are removed exactly. An optical centre off the
+//! fitted grid cannot be removed by any image warp (its parallax depends on depth), so it is
+//! measured and reported ([`CameraRectification::grid_offset_mm`]).
+//! In: a [`CameraModel`] per camera. Out: a [`Rectification`] that resamples each capture;
+//! the rest of the pipeline then works on the rectified array.
+
+mod camera_model;
+mod file_storage;
+
+pub use camera_model::{apply, identity, rodrigues, transpose, CameraModel, Matrix3};
+pub use file_storage::{parse_json, parse_yaml, read_file_storage, FileStorage, StoredValue};
+
+use crate::io::LinearImage;
+use crate::{Error, Result};
+use faer::linalg::solvers::DenseSolveCore;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// A camera whose map moves no pixel by more than this is left as it is (no resampling).
+pub const IDENTITY_TOLERANCE_PX: f64 = 1e-3;
+/// Optical centres further than this fraction of the baseline from the fitted grid raise a
+/// warning: their parallax error is that fraction of the disparity.
+pub const GRID_OFFSET_WARNING: f64 = 0.01;
+/// Smallest cosine between the cameras' mean optical axis and the normal of their grid.
+const MIN_AXIS_COSINE: f64 = 0.5;
+/// Spacing of the pixels at which a map's largest correction is measured.
+const CORRECTION_SAMPLING_PX: usize = 8;
+
+/// What rectification does to one camera.
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraRectification {
+    pub row: usize,
+    pub col: usize,
+    /// Largest displacement of the rectifying map, pixels.
+    pub max_correction_px: f64,
+    /// Distance of the optical centre from the fitted grid, in the calibration's unit (mm).
+    pub grid_offset_mm: f64,
+    #[serde(skip)]
+    pub model: CameraModel,
+}
+
+/// The common image plane of an array and the map of every camera onto it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Rectification {
+    pub width: usize,
+    pub height: usize,
+    /// Focal length of the rectified cameras, pixels.
+    pub focal_px: f64,
+    /// Principal point of the rectified cameras (OpenCV pixel coordinates).
+    pub principal_point: [f64; 2],
+    /// World to rectified camera: rows are the array's x, y and viewing axes.
+    pub orientation: Matrix3,
+    /// Fitted horizontal and vertical baselines (0 where the array has one column or row).
+    pub baseline_mm: [f64; 2],
+    pub cameras: Vec<CameraRectification>,
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+fn normalised(v: [f64; 3]) -> [f64; 3] {
+    let n = norm(v);
+    v.map(|x| x / n)
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Least-squares fit of centres `P(r, c) ≈ O + c·u + r·v`; returns (O, u, v), u or v zero
+/// when the array has a single column or row.
+fn fit_grid(positions: &[(usize, usize, [f64; 3])]) -> Result<[[f64; 3]; 3]> {
+    let cols = positions.iter().map(|p| p.1).max().unwrap_or(0) + 1;
+    let rows = positions.iter().map(|p| p.0).max().unwrap_or(0) + 1;
+    let regressors = |r: usize, c: usize| {
+        let mut x = vec![1.0];
+        if cols > 1 {
+            x.push(c as f64);
+        }
+        if rows > 1 {
+            x.push(r as f64);
+        }
+        x
+    };
+    let k = regressors(0, 0).len();
+    let mut normal = faer::Mat::<f64>::zeros(k, k);
+    let mut rhs = vec![[0.0; 3]; k];
+    for &(r, c, p) in positions {
+        let x = regressors(r, c);
+        for i in 0..k {
+            for j in 0..k {
+                normal[(i, j)] += x[i] * x[j];
+            }
+            for d in 0..3 {
+                rhs[i][d] += x[i] * p[d];
+            }
+        }
+    }
+    let inverse = normal.partial_piv_lu().inverse();
+    let mut coefficients = vec![[0.0; 3]; k];
+    for i in 0..k {
+        for d in 0..3 {
+            coefficients[i][d] = (0..k).map(|j| inverse[(i, j)] * rhs[j][d]).sum();
+        }
+    }
+    if coefficients.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(Error::LinearAlgebra {
+            op: "rectification: fitting the camera grid".into(),
+            message: "the cameras' grid positions do not determine a grid".into(),
+        });
+    }
+    let mut it = coefficients.into_iter();
+    let origin = it.next().unwrap_or([0.0; 3]);
+    let u = if cols > 1 { it.next() } else { None };
+    let v = if rows > 1 { it.next() } else { None };
+    Ok([origin, u.unwrap_or([0.0; 3]), v.unwrap_or([0.0; 3])])
+}
+
+/// Catmull–Rom weights of the taps at −1, 0, 1, 2 for fractional position `t`.
+fn cubic_weights(t: f64) -> [f64; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        0.5 * (-t + 2.0 * t2 - t3),
+        0.5 * (2.0 - 5.0 * t2 + 3.0 * t3),
+        0.5 * (t + 4.0 * t2 - 3.0 * t3),
+        0.5 * (-t2 + t3),
+    ]
+}
+
+impl Rectification {
+    /// Plans the rectification of cameras given as (row, col, model), all of `width ×
+    /// height` pixels.
+    pub fn plan(
+        cameras: Vec<(usize, usize, CameraModel)>,
+        width: usize,
+        height: usize,
+    ) -> Result<Self> {
+        if cameras.is_empty() || width < 2 || height < 2 {
+            return Err(Error::invalid(
+                "rectification",
+                format!("{} cameras of {width}x{height} px", cameras.len()),
+            ));
+        }
+        for (r, c, model) in &cameras {
+            if let Some((w, h)) = model.image_size {
+                if (w, h) != (width, height) {
+                    return Err(Error::invalid(
+                        format!("calibration of camera r{r}c{c}"),
+                        format!("made for {w}x{h} px images but the captures are {width}x{height}"),
+                    ));
+                }
+            }
+        }
+        let positions: Vec<(usize, usize, [f64; 3])> = cameras
+            .iter()
+            .map(|(r, c, m)| (*r, *c, m.centre()))
+            .collect();
+        let [origin, u, v] = fit_grid(&positions)?;
+        let mean_axis = |k: usize| {
+            normalised(cameras.iter().fold([0.0; 3], |acc, (_, _, m)| {
+                let a = m.axis(k);
+                [acc[0] + a[0], acc[1] + a[1], acc[2] + a[2]]
+            }))
+        };
+        let (has_u, has_v) = (norm(u) > 0.0, norm(v) > 0.0);
+        let (x_axis, y_axis) = if has_u {
+            let x = normalised(u);
+            let y0 = if has_v { normalised(v) } else { mean_axis(1) };
+            let d = dot(y0, x);
+            (
+                x,
+                normalised([y0[0] - d * x[0], y0[1] - d * x[1], y0[2] - d * x[2]]),
+            )
+        } else {
+            let y = if has_v { normalised(v) } else { mean_axis(1) };
+            let x0 = mean_axis(0);
+            let d = dot(x0, y);
+            (
+                normalised([x0[0] - d * y[0], x0[1] - d * y[1], x0[2] - d * y[2]]),
+                y,
+            )
+        };
+        let z_axis = cross(x_axis, y_axis);
+        let cosine = dot(z_axis, mean_axis(2));
+        if !(cosine > MIN_AXIS_COSINE) {
+            return Err(Error::invalid(
+                "rectification",
+                format!(
+                    "the cameras look {:.0}° away from the normal of their grid: the rig's rows \
+                     and columns do not match the calibrated positions (swapped or mirrored?)",
+                    cosine.clamp(-1.0, 1.0).acos().to_degrees()
+                ),
+            ));
+        }
+        let focal_px =
+            cameras.iter().map(|(_, _, m)| m.focal_px()).sum::<f64>() / cameras.len() as f64;
+        let mut plan = Rectification {
+            width,
+            height,
+            focal_px,
+            principal_point: [0.5 * width as f64 - 0.5, 0.5 * height as f64 - 0.5],
+            orientation: [x_axis, y_axis, z_axis],
+            baseline_mm: [norm(u), norm(v)],
+            cameras: cameras
+                .into_iter()
+                .map(|(row, col, model)| {
+                    let p = model.centre();
+                    let g = [0, 1, 2].map(|d| origin[d] + col as f64 * u[d] + row as f64 * v[d]);
+                    CameraRectification {
+                        row,
+                        col,
+                        max_correction_px: 0.0,
+                        grid_offset_mm: norm([p[0] - g[0], p[1] - g[1], p[2] - g[2]]),
+                        model,
+                    }
+                })
+                .collect(),
+        };
+        for k in 0..plan.cameras.len() {
+            let mut worst = 0.0f64;
+            let xs = (0..width)
+                .step_by(CORRECTION_SAMPLING_PX)
+                .chain([width - 1]);
+            for x in xs {
+                for y in (0..height)
+                    .step_by(CORRECTION_SAMPLING_PX)
+                    .chain([height - 1])
+                {
+                    worst = worst.max(match plan.source_position(k, x as f64, y as f64) {
+                        Some((sx, sy)) => (sx - x as f64).hypot(sy - y as f64),
+                        None => f64::INFINITY,
+                    });
+                }
+            }
+            plan.cameras[k].max_correction_px = worst;
+        }
+        Ok(plan)
+    }
+
+    /// Where rectified pixel (x, y) of camera `camera` lies in its capture (OpenCV pixel
+    /// coordinates, i.e. array indices); None if the camera cannot see that direction.
+    pub fn source_position(&self, camera: usize, x: f64, y: f64) -> Option<(f64, f64)> {
+        let f = self.focal_px;
+        let local = [
+            (x - self.principal_point[0]) / f,
+            (y - self.principal_point[1]) / f,
+            1.0,
+        ];
+        let world = apply(&transpose(&self.orientation), local);
+        self.cameras[camera].model.project_direction(world)
+    }
+
+    /// Largest distance of an optical centre from the fitted grid, as a fraction of the
+    /// larger fitted baseline.
+    pub fn worst_grid_offset(&self) -> f64 {
+        let baseline = self.baseline_mm[0].max(self.baseline_mm[1]);
+        let worst = self
+            .cameras
+            .iter()
+            .map(|c| c.grid_offset_mm)
+            .fold(0.0, f64::max);
+        if baseline > 0.0 {
+            worst / baseline
+        } else {
+            0.0
+        }
+    }
+
+    /// Resamples capture `image` of camera `camera` onto the common plane (bicubic).
+    /// Rectified pixels outside the source frame are NaN; a value interpolated from a tap
+    /// at or above `saturation` takes that tap's value, so it stays marked saturated.
+    /// A camera whose map is the identity is returned unchanged.
+    pub fn resample(
+        &self,
+        camera: usize,
+        image: &LinearImage,
+        saturation: f32,
+    ) -> Result<LinearImage> {
+        let (w, h, ch) = (self.width, self.height, image.channels);
+        let cam = self
+            .cameras
+            .get(camera)
+            .ok_or_else(|| Error::invalid("rectification", format!("no camera {camera}")))?;
+        if (image.width, image.height) != (w, h) {
+            return Err(Error::Shape {
+                op: format!("rectifying camera r{}c{}", cam.row, cam.col),
+                got: vec![image.width, image.height],
+                expected: vec![w, h],
+            });
+        }
+        if cam.max_correction_px < IDENTITY_TOLERANCE_PX {
+            return Ok(image.clone());
+        }
+        let mut data = vec![0.0f32; w * h * ch];
+        data.par_chunks_mut(w * ch)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for x in 0..w {
+                    let out = &mut row[x * ch..(x + 1) * ch];
+                    let inside =
+                        self.source_position(camera, x as f64, y as f64)
+                            .filter(|&(sx, sy)| {
+                                (-0.5..=w as f64 - 0.5).contains(&sx)
+                                    && (-0.5..=h as f64 - 0.5).contains(&sy)
+                            });
+                    let Some((sx, sy)) = inside else {
+                        out.fill(f32::NAN);
+                        continue;
+                    };
+                    let (fx, fy) = (sx.floor(), sy.floor());
+                    let (wx, wy) = (cubic_weights(sx - fx), cubic_weights(sy - fy));
+                    let tap = |base: f64, i: usize, size: usize| {
+                        (base as isize + i as isize - 1).clamp(0, size as isize - 1) as usize
+                    };
+                    for (c, value) in out.iter_mut().enumerate() {
+                        let (mut sum, mut flagged) = (0.0f64, None::<f32>);
+                        for j in 0..4 {
+                            let row_start = tap(fy, j, h) * w;
+                            for i in 0..4 {
+                                let weight = wx[i] * wy[j];
+                                if weight == 0.0 {
+                                    continue;
+                                }
+                                let v = image.data[(row_start + tap(fx, i, w)) * ch + c];
+                                if !(v < saturation) {
+                                    flagged = Some(match flagged {
+                                        Some(f) if f.is_nan() => f,
+                                        Some(f) => {
+                                            if v.is_nan() {
+                                                v
+                                            } else {
+                                                f.max(v)
+                                            }
+                                        }
+                                        None => v,
+                                    });
+                                }
+                                sum += weight * v as f64;
+                            }
+                        }
+                        *value = flagged.unwrap_or(sum.max(0.0) as f32);
+                    }
+                }
+            });
+        Ok(LinearImage {
+            width: w,
+            height: h,
+            channels: ch,
+            bit_depth: image.bit_depth,
+            data,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{rotation, PinholeCamera, Vec3};
+
+    fn array(jitter_deg: f64, offset_mm: f64) -> Vec<(usize, usize, CameraModel)> {
+        (0..8)
+            .map(|i| {
+                let (r, c) = (i / 4, i % 4);
+                let mut camera = PinholeCamera::on_grid(r, c, (30.0, 50.0), 500.0, (160, 120));
+                let s = (i as f64 * 1.7).sin();
+                camera.rotation = rotation([jitter_deg * s, -jitter_deg * s * 0.5, jitter_deg]);
+                camera.centre = camera.centre + Vec3::new(0.0, 0.0, offset_mm * s);
+                (r, c, CameraModel::from_pinhole(&camera))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_parallel_array_maps_to_itself() {
+        let plan = Rectification::plan(array(0.0, 0.0), 160, 120).unwrap();
+        assert!((plan.focal_px - 500.0).abs() < 1e-9);
+        assert!(
+            (plan.baseline_mm[0] - 30.0).abs() < 1e-9 && (plan.baseline_mm[1] - 50.0).abs() < 1e-9
+        );
+        for (k, cam) in plan.cameras.iter().enumerate() {
+            assert!(
+                cam.max_correction_px < 1e-9,
+                "{k}: {}",
+                cam.max_correction_px
+            );
+            assert!(cam.grid_offset_mm < 1e-9);
+        }
+        let image = LinearImage {
+            width: 160,
+            height: 120,
+            channels: 1,
+            bit_depth: 16,
+            data: (0..160 * 120).map(|i| (i % 97) as f32 / 97.0).collect(),
+        };
+        assert_eq!(plan.resample(3, &image, 1.0).unwrap().data, image.data);
+    }
+
+    #[test]
+    fn rotated_cameras_map_through_their_homography_and_offsets_are_reported() {
+        let cameras = array(0.8, 0.0);
+        let plan = Rectification::plan(cameras.clone(), 160, 120).unwrap();
+        // Pure rotations about the optical centres: the ideal frame is recovered, and the map
+        // is K R K⁻¹ of each camera.
+        for (k, (_, _, model)) in cameras.iter().enumerate() {
+            let (x, y) = (37.0, 91.0);
+            let d = [(x - 79.5) / 500.0, (y - 59.5) / 500.0, 1.0];
+            let p = apply(&model.rotation, d);
+            let want = (500.0 * p[0] / p[2] + 79.5, 500.0 * p[1] / p[2] + 59.5);
+            let (sx, sy) = plan.source_position(k, x, y).unwrap();
+            assert!((sx - want.0).abs() < 1e-9 && (sy - want.1).abs() < 1e-9);
+            assert!(plan.cameras[k].max_correction_px > 1.0);
+        }
+        assert!(plan.worst_grid_offset() < 1e-9);
+        let moved = Rectification::plan(array(0.0, 2.0), 160, 120).unwrap();
+        let worst = moved.worst_grid_offset() * 50.0;
+        assert!(worst > 1.0 && worst < 2.0, "{worst}");
+    }
+
+    #[test]
+    fn bad_layouts_and_sizes_are_refused() {
+        let mut mirrored = array(0.0, 0.0);
+        for (r, _, _) in &mut mirrored {
+            *r = 1 - *r; // rows swapped: the grid's normal points backwards
+        }
+        let err = Rectification::plan(mirrored, 160, 120)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("180°") && err.contains("swapped"), "{err}");
+        let err = Rectification::plan(array(0.0, 0.0), 320, 240)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("160x120") && err.contains("320x240"), "{err}");
+    }
+
+    #[test]
+    fn samples_outside_the_frame_are_not_measured_and_saturation_survives() {
+        let plan = Rectification::plan(array(2.0, 0.0), 160, 120).unwrap();
+        let mut image = LinearImage {
+            width: 160,
+            height: 120,
+            channels: 1,
+            bit_depth: 16,
+            data: vec![0.5; 160 * 120],
+        };
+        image.data[60 * 160 + 80] = 1.0;
+        let out = plan.resample(0, &image, 0.999).unwrap();
+        let nan = out.data.iter().filter(|v| v.is_nan()).count();
+        assert!(nan > 0 && nan < out.data.len() / 4, "{nan}");
+        let saturated = out.data.iter().filter(|&&v| v >= 0.999).count();
+        assert!((4..=16).contains(&saturated), "{saturated}");
+        // A flat field stays flat (the weights sum to one).
+        assert!(out
+            .data
+            .iter()
+            .filter(|v| v.is_finite() && **v < 0.999)
+            .all(|v| (v - 0.5).abs() < 1e-6));
+    }
+}
