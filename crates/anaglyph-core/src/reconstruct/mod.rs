@@ -212,6 +212,13 @@ pub fn reconstruct(
                     row: cam.row,
                     col: cam.col,
                     image,
+                    measured: cam.capture.data.iter().any(|v| v.is_nan()).then(|| {
+                        cam.capture
+                            .data
+                            .chunks_exact(cam.capture.channels)
+                            .map(|p| p.iter().all(|v| !v.is_nan()))
+                            .collect()
+                    }),
                 })
                 .collect();
             let registration = register_views(

@@ -90,6 +90,10 @@ pub struct GridImage {
     pub row: usize,
     pub col: usize,
     pub image: GreyImage,
+    /// Which pixels hold a measurement (None: all). A rectified camera has none outside
+    /// its source frame; multi-baseline matching gives such pixels no features, so they
+    /// neither match nor attract matches (their disparity comes from SGM's neighbours).
+    pub measured: Option<Vec<bool>>,
 }
 
 /// A disparity map per view (in `images` order, NaN where nothing could be estimated) and

@@ -307,7 +307,21 @@ pub fn multi_baseline_disparities(
     let clock = Instant::now();
     let features: Vec<CompactFeatures> = images
         .iter()
-        .map(|v| CompactFeatures::from(tower_features(network, &v.image)))
+        .map(|v| {
+            let mut compact = CompactFeatures::from(tower_features(network, &v.image));
+            if let Some(measured) = &v.measured {
+                let c = compact.channels;
+                for (feature, _) in compact
+                    .data
+                    .chunks_exact_mut(c)
+                    .zip(measured)
+                    .filter(|(_, m)| !**m)
+                {
+                    feature.fill(0); // cosine 0 with everything: a neutral cost of 0.5
+                }
+            }
+            compact
+        })
         .collect();
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let flat = GreyImage {
