@@ -38,6 +38,7 @@ pub mod demux;
 mod error;
 pub mod evaluation;
 pub mod filters;
+pub mod interpolation;
 pub mod io;
 pub mod metrics;
 pub mod reconstruct;

@@ -23,6 +23,7 @@ mod file_storage;
 pub use camera_model::{apply, identity, rodrigues, transpose, CameraModel, Matrix3};
 pub use file_storage::{parse_json, parse_yaml, read_file_storage, FileStorage, StoredValue};
 
+use crate::interpolation::catmull_rom_weights;
 use crate::io::LinearImage;
 use crate::{Error, Result};
 use faer::linalg::solvers::DenseSolveCore;
@@ -136,17 +137,6 @@ fn fit_grid(positions: &[(usize, usize, [f64; 3])]) -> Result<[[f64; 3]; 3]> {
     let u = if cols > 1 { it.next() } else { None };
     let v = if rows > 1 { it.next() } else { None };
     Ok([origin, u.unwrap_or([0.0; 3]), v.unwrap_or([0.0; 3])])
-}
-
-/// Catmull–Rom weights of the taps at −1, 0, 1, 2 for fractional position `t`.
-fn cubic_weights(t: f64) -> [f64; 4] {
-    let (t2, t3) = (t * t, t * t * t);
-    [
-        0.5 * (-t + 2.0 * t2 - t3),
-        0.5 * (2.0 - 5.0 * t2 + 3.0 * t3),
-        0.5 * (t + 4.0 * t2 - 3.0 * t3),
-        0.5 * (-t2 + t3),
-    ]
 }
 
 impl Rectification {
@@ -330,7 +320,7 @@ impl Rectification {
                         continue;
                     };
                     let (fx, fy) = (sx.floor(), sy.floor());
-                    let (wx, wy) = (cubic_weights(sx - fx), cubic_weights(sy - fy));
+                    let (wx, wy) = (catmull_rom_weights(sx - fx), catmull_rom_weights(sy - fy));
                     let tap = |base: f64, i: usize, size: usize| {
                         (base as isize + i as isize - 1).clamp(0, size as isize - 1) as usize
                     };
