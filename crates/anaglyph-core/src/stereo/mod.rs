@@ -33,6 +33,8 @@ pub use matcher::{
 };
 pub use mutual_information::{mutual_information_cost_volume, mutual_information_table, BINS};
 pub use network::{ConvLayer, DenseLayer, MatchingNetwork, DEFAULT_FAST_WEIGHTS};
-pub use refine::{left_right_check, subpixel_disparity, winner_take_all, LEFT_RIGHT_TOLERANCE};
+pub use refine::{
+    left_right_check, subpixel_disparity, windowed_subpixel, winner_take_all, LEFT_RIGHT_TOLERANCE,
+};
 pub use sgm::{semi_global_matching, SgmParameters};
 pub use zncc::zncc_cost_volume;
