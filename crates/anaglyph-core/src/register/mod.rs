@@ -84,6 +84,11 @@ pub struct RegistrationSettings<'a> {
     pub max_disp: usize,
 }
 
+/// Half-size of the window of the subpixel refinement of both registration modes (11×11,
+/// [`crate::stereo::windowed_subpixel`]): on the tabletop at 640×480 (multi-baseline),
+/// radius 1 / 2 / 3 / 5 gave r0c0 28.99 / 29.07 / 29.17 / 29.28 dB, 8 no more.
+pub const SUBPIXEL_WINDOW_RADIUS: usize = 5;
+
 /// A view's grey image for matching, at its place on the grid.
 #[derive(Debug, Clone)]
 pub struct GridImage {

@@ -19,6 +19,7 @@
 use super::RegistrationSettings;
 use super::{
     fill_from_background, find, smooth_within_surfaces, ArrayGeometry, GridImage, Registration,
+    SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, windowed_subpixel,
@@ -33,9 +34,6 @@ use std::time::Instant;
 const HALVES: usize = 4;
 /// Fractional row offsets below this are treated as whole rows (one dot product).
 const WHOLE_ROW: f64 = 1e-6;
-/// Half-size of the window of the subpixel refinement (11×11): on the tabletop at 640×480,
-/// radius 1 / 2 / 3 / 5 gave r0c0 28.99 / 29.07 / 29.17 / 29.28 dB, 8 no more.
-const SUBPIXEL_WINDOW_RADIUS: usize = 5;
 
 /// Learned features stored as bfloat16 (the upper half of each f32, rounded to nearest):
 /// all views' features are held at once, 4.2 GB as f32 for eight 1920×1080 views, half that

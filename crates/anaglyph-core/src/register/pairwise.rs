@@ -5,7 +5,9 @@
 //! filled from the background side.
 
 use super::RegistrationSettings;
-use super::{fill_from_background, find, ArrayGeometry, GridImage, Registration};
+use super::{
+    fill_from_background, find, ArrayGeometry, GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
+};
 use crate::stereo::{match_pair, match_vertical, GreyImage, LeftRight, MatchSettings};
 use crate::Result;
 use std::time::Instant;
@@ -59,6 +61,7 @@ fn along_row(
     let view = &images[i];
     let chain = MatchSettings {
         left_right: LeftRight::Check,
+        subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
         ..MatchSettings::for_cost(&settings.cost, settings.max_disp)
     };
     if let Some(j) = find(images, view.row, view.col + 1) {
@@ -94,6 +97,7 @@ fn along_column(
     let ratio = geometry.baseline_ratio;
     let chain = MatchSettings {
         left_right: LeftRight::Check,
+        subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
         ..MatchSettings::for_cost(
             &settings.cost,
             (settings.max_disp as f64 * ratio).ceil() as usize,

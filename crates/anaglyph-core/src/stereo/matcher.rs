@@ -7,9 +7,9 @@
 use super::{
     bilateral_filter, census_cost_volume, classify, cross_based_aggregation, fill_inconsistent,
     learned_cost_volume, median_filter, mutual_information_cost_volume, normalise_image,
-    right_disparity, semi_global_matching, subpixel_disparity, winner_take_all, zncc_cost_volume,
-    Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage, MatchingNetwork,
-    SgmParameters,
+    right_disparity, semi_global_matching, subpixel_disparity, windowed_subpixel, winner_take_all,
+    zncc_cost_volume, Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage,
+    MatchingNetwork, SgmParameters,
 };
 use crate::{Error, Result};
 use std::time::Instant;
@@ -58,6 +58,9 @@ pub struct MatchSettings {
     pub aggregation_after_sgm: Option<CrossAggregation>,
     pub left_right: LeftRight,
     pub subpixel: bool,
+    /// With `subpixel`: None refines on the aggregated costs by a parabola (MC-CNN);
+    /// Some(radius) uses [`windowed_subpixel`] on the raw costs (no pixel locking).
+    pub subpixel_window: Option<usize>,
     pub median: bool,
     pub bilateral: Option<Bilateral>,
 }
@@ -72,6 +75,7 @@ impl MatchSettings {
             aggregation_after_sgm: None,
             left_right: LeftRight::CheckAndFill,
             subpixel: true,
+            subpixel_window: None,
             median: true,
             bilateral: Some(Bilateral {
                 sigma: 4.64,
@@ -125,6 +129,7 @@ impl MatchSettings {
             aggregation_after_sgm: None,
             left_right: LeftRight::Off,
             subpixel: false,
+            subpixel_window: None,
             median: false,
             bilateral: None,
         }
@@ -259,6 +264,7 @@ pub fn match_pair(
         }
     };
     lap("cost", &mut timings);
+    let raw = (settings.subpixel && settings.subpixel_window.is_some()).then(|| volume.clone());
     if let Some(cbca) = &settings.aggregation_before_sgm {
         cross_based_aggregation(&mut volume, &left_unit, &right_unit, cbca);
         lap("aggregation before SGM", &mut timings);
@@ -293,7 +299,10 @@ pub fn match_pair(
         lap("left-right check", &mut timings);
     }
     if settings.subpixel {
-        disparity = subpixel_disparity(&volume, &disparity);
+        disparity = match (&raw, settings.subpixel_window) {
+            (Some(raw), Some(radius)) => windowed_subpixel(raw, &disparity, radius),
+            _ => subpixel_disparity(&volume, &disparity),
+        };
         lap("subpixel", &mut timings);
     }
     if settings.median {
