@@ -125,7 +125,7 @@ fn learned_multi_baseline_registration_comes_close_to_the_true_disparities() {
     let (o_ref, o_seen, o_mean, o_bad) = measure(&oracle, &simulation, &rig);
     let (e_ref, e_seen, e_mean, e_bad) = measure(&estimated, &simulation, &rig);
     eprintln!("true: {o_ref:.2} {o_seen:.2} {o_mean:.2} {o_bad:.1}; estimated: {e_ref:.2} {e_seen:.2} {e_mean:.2} {e_bad:.1}");
-    // Measured: true 26.01 / 26.63 / 27.71 dB; estimated 23.72 / 24.69 / 25.31 dB, 7.3 %
+    // Measured: true 26.01 / 26.63 / 27.71 dB; estimated 24.02 / 25.09 / 25.41 dB, 7.3 %
     // (22.17 / 22.81 / 23.98 dB with the parabolic subpixel on SGM costs).
     assert_eq!(estimated.views.len(), 8);
     assert_eq!(o_bad, 0.0);
@@ -134,7 +134,7 @@ fn learned_multi_baseline_registration_comes_close_to_the_true_disparities() {
         "{o_ref} {o_seen} {o_mean}"
     );
     assert!(
-        e_ref > 23.2 && e_seen > 24.1 && e_mean > 24.8,
+        e_ref > 23.5 && e_seen > 24.5 && e_mean > 24.9,
         "{e_ref} {e_seen} {e_mean}"
     );
     assert!(e_bad < 9.0, "{e_bad}");
