@@ -9,8 +9,9 @@
 //! ```
 //!
 //! In: a loaded [`Rig`] and its [`ArrayCaptures`] (already rectified, or carrying each
-//! camera's calibration for [`crate::rectify`]). Out: a [`LightField`] with a reflectance cube and disparity map per requested
-//! view, per-camera calibration, visibility, per-stage timings and warnings;
+//! camera's calibration for [`crate::rectify`]). Out: a [`LightField`] with a reflectance
+//! cube and disparity map per requested view (in the rectified frame), per-camera
+//! calibration, rectification, visibility, per-stage timings and warnings;
 //! [`write_light_field`] writes the fixed output layout.
 
 mod inputs;
@@ -333,8 +334,12 @@ fn rectify_array(
     let mut cameras = Vec::with_capacity(total);
     for (k, cam) in captures.cameras.iter().enumerate() {
         cameras.push(CameraCapture {
+            row: cam.row,
+            col: cam.col,
             capture: plan.resample(k, &cam.capture, saturation_level)?,
-            ..cam.clone()
+            white: cam.white.clone(),
+            exposure: cam.exposure,
+            calibration: cam.calibration.clone(),
         });
         progress(Stage::Rectification, k + 1, total);
     }

@@ -236,9 +236,10 @@ fn accumulate_row(job: &RowJob<'_>, sums: &mut [f32], counts: &mut [u16]) {
 /// Offsets from a pixel's own whole disparity at which [`half_step_costs`] evaluates.
 const HALF_STEPS: [f64; 4] = [-1.5, -0.5, 0.5, 1.5];
 
-/// The multi-view cost of reference pixel (x, y) at a fractional disparity `d`: each view's
-/// similarity bilinearly interpolated from the four feature vectors around its position,
-/// then the same half-array rule as the volume. NaN if no half-array sees the point.
+/// The multi-view cost of reference pixel (x, y) at a fractional disparity `d`: for each
+/// view, the cosine with its feature bilinearly interpolated at the shifted position (and
+/// renormalised), then the same half-array rule as the volume. NaN if no half-array sees
+/// the point.
 fn cost_at(job: &RowJob<'_>, x: usize, d: f64) -> f32 {
     let fr = job.reference;
     let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
