@@ -103,6 +103,7 @@ fn main() -> anyhow::Result<()> {
                 demux: Default::default(),
                 views: None,
                 given_disparities: given,
+                automatic_search_range: false,
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -482,6 +482,25 @@ pub enum ViewList {
     Some(Vec<(usize, usize)>),
 }
 
+/// `--max-disp`: a number of disparities or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SearchRangeArg {
+    Auto,
+    Fixed(usize),
+}
+
+fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
+    if text.eq_ignore_ascii_case("auto") {
+        return Ok(SearchRangeArg::Auto);
+    }
+    match text.trim().parse::<usize>() {
+        Ok(n) if (2..=4096).contains(&n) => Ok(SearchRangeArg::Fixed(n)),
+        _ => Err(format!(
+            "'{text}' (expected auto or a number of disparities in 2..=4096)"
+        )),
+    }
+}
+
 fn parse_views(text: &str) -> Result<ViewList, String> {
     if text.trim().eq_ignore_ascii_case("all") {
         return Ok(ViewList::All);
@@ -555,9 +574,10 @@ pub struct ReconstructArgs {
     /// Network weights (safetensors from `anaglyph train`); default: the built-in fast model.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Disparities searched per column step: [0, N).
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
-    pub max_disp: u64,
+    /// Disparities searched per column step: [0, N), or `auto` to choose N from a coarse
+    /// registration of the captures (recorded in the manifest).
+    #[arg(long, default_value = "auto", value_parser = parse_search_range)]
+    pub max_disp: SearchRangeArg,
     /// Reflectance of the white board.
     #[arg(long, default_value_t = 0.95)]
     pub white_reflectance: f64,

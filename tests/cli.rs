@@ -794,6 +794,21 @@ fn reconstruct_rejects_missing_or_mismatched_captures_cleanly() {
     assert_clean_failure(&run(with(&["--captures", "empty"])), "no capture r0c0");
     assert_clean_failure(&run(with(&["--views", "r4c0"])), "not in the 2x4 rig");
     assert_clean_failure(&run(with(&["--views", "row0"])), "expected r<row>c<col>");
+    assert_clean_failure(
+        &anaglyph(
+            &[
+                "reconstruct",
+                "--rig",
+                "sim/rig.toml",
+                "--out",
+                "rec",
+                "--max-disp",
+                "wide",
+            ],
+            d,
+        ),
+        "expected auto or a number",
+    );
     std::fs::copy(
         d.join("small/captures/r0c1.png"),
         d.join("sim/captures/r0c1.png"),

@@ -145,6 +145,7 @@ pub fn run_presets(
             demux: Default::default(),
             views: None,
             given_disparities: None,
+            automatic_search_range: false,
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -4,7 +4,7 @@
 
 use super::format_seconds;
 use super::match_pair::{load_network, matching_cost};
-use crate::cli::{ReconstructArgs, RegistrationChoice, ViewList};
+use crate::cli::{ReconstructArgs, RegistrationChoice, SearchRangeArg, ViewList};
 use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
@@ -97,7 +97,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         registration: RegistrationSettings {
             mode,
             cost,
-            max_disp: args.max_disp as usize,
+            max_disp: match args.max_disp {
+                SearchRangeArg::Fixed(n) => n,
+                SearchRangeArg::Auto => 64, // replaced by the estimate
+            },
         },
         white_reflectance: args.white_reflectance,
         saturation_level: args.saturation,
@@ -109,6 +112,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             ViewList::All => None,
             ViewList::Some(list) => Some(list.clone()),
         },
+        automatic_search_range: args.max_disp == SearchRangeArg::Auto && given.is_none(),
         given_disparities: given,
     };
     let loading = started.elapsed().as_secs_f64();
@@ -134,7 +138,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "true_disparity": args.true_disparity.as_ref().map(|p| p.display().to_string()),
         "method": format!("{:?}", args.method),
         "model": args.model.as_ref().map(|p| p.display().to_string()),
-        "max_disp": args.max_disp,
+        "max_disp": match args.max_disp {
+            SearchRangeArg::Fixed(n) => serde_json::json!(n),
+            SearchRangeArg::Auto => serde_json::json!("auto"),
+        },
         "white_reflectance": args.white_reflectance,
         "saturation": args.saturation,
         "solver": format!("{:?}", settings.demux.solver),
@@ -162,6 +169,12 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         field.bands.last().copied().unwrap_or(0.0),
         field.condition_number
     );
+    if let Some(range) = &field.search_range {
+        println!(
+            "  search range [0, {}) chosen from a {}x coarse registration (98 % of disparities below {:.1} px)",
+            range.max_disp, range.factor, range.covered_disparity_px
+        );
+    }
     for view in &field.views {
         println!(
             "  r{}c{}: {:.1} % of pixels seen by every camera, {} without a measurement",

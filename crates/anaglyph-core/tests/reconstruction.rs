@@ -47,6 +47,7 @@ fn settings<'a>(
         demux: Default::default(),
         views: None,
         given_disparities: given,
+        automatic_search_range: false,
     }
 }
 
@@ -206,4 +207,48 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
     );
     only.views = Some(vec![(2, 0)]);
     assert!(reconstruct(&rig, &captures, &only, &|_, _, _| {}).is_err());
+}
+
+#[test]
+fn the_search_range_is_found_from_the_captures() {
+    use anaglyph_core::register::{estimate_search_range, GridImage};
+    let (rig, simulation) = tabletop();
+    let captures = ArrayCaptures::from_simulation(&simulation);
+    let network = MatchingNetwork::default_fast().unwrap();
+    let images: Vec<GridImage> = captures
+        .grey_images()
+        .into_iter()
+        .zip(&simulation.views)
+        .map(|(image, v)| GridImage {
+            row: v.row,
+            col: v.col,
+            image,
+            measured: None,
+        })
+        .collect();
+    let geometry = ArrayGeometry::of_rig(&rig);
+    let range = estimate_search_range(
+        &images,
+        &geometry,
+        &RegistrationSettings {
+            mode: RegistrationMode::MultiBaseline,
+            cost: MatchingCost::Learned(&network),
+            max_disp: 0,
+        },
+    )
+    .unwrap();
+    let largest = simulation
+        .views
+        .iter()
+        .flat_map(|v| v.disparity.iter())
+        .copied()
+        .filter(|d| d.is_finite())
+        .fold(0.0f32, f32::max) as f64;
+    eprintln!("largest true disparity {largest:.1}, range {range:?}");
+    // Measured: largest 11.4 px, range [0, 17) (98 % of the coarse disparities below 11.5).
+    assert!(
+        range.max_disp as f64 > largest && (range.max_disp as f64) < 1.6 * largest + 6.0,
+        "largest {largest:.1}, chosen {}",
+        range.max_disp
+    );
 }

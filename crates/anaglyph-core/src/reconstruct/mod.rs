@@ -29,7 +29,8 @@ pub use probe_plot::{plot_probe, plot_series, Probe};
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
 use crate::register::{
-    gather_measurements, register_views, ArrayGeometry, GridImage, RegistrationSettings, Visibility,
+    estimate_search_range, gather_measurements, register_views, ArrayGeometry, GridImage,
+    RegistrationSettings, SearchRange, Visibility,
 };
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
 use crate::{Error, Result};
@@ -64,6 +65,8 @@ pub struct PipelineSettings<'a> {
     /// Disparity maps to use instead of registration (one per camera, rig order), e.g.
     /// the simulator's truth to measure what registration costs.
     pub given_disparities: Option<Vec<Vec<f32>>>,
+    /// Choose `registration.max_disp` from the captures ([`estimate_search_range`]).
+    pub automatic_search_range: bool,
 }
 
 /// One reconstructed view.
@@ -90,6 +93,8 @@ pub struct LightField {
     pub calibration: Vec<CameraCalibration>,
     /// How the array was rectified (None: the captures were already rectified).
     pub rectification: Option<Rectification>,
+    /// The search range chosen from the captures (None: given, or no registration).
+    pub search_range: Option<SearchRange>,
     pub condition_number: f64,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
@@ -191,6 +196,7 @@ pub fn reconstruct(
     timings.push(("calibration".to_string(), clock.elapsed().as_secs_f64()));
 
     let geometry = ArrayGeometry::of_rig(rig);
+    let mut search_range = None;
     let disparities = match &settings.given_disparities {
         Some(given) => {
             if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
@@ -222,10 +228,17 @@ pub fn reconstruct(
                     }),
                 })
                 .collect();
+            let mut registration_settings = settings.registration;
+            if settings.automatic_search_range {
+                let range = estimate_search_range(&images, &geometry, &registration_settings)?;
+                registration_settings.max_disp = range.max_disp;
+                timings.push(("search range".to_string(), range.seconds));
+                search_range = Some(range);
+            }
             let registration = register_views(
                 &images,
                 &geometry,
-                &settings.registration,
+                &registration_settings,
                 &|done, total| progress(Stage::Registration, done, total),
             )?;
             for (name, seconds) in &registration.timings {
@@ -286,6 +299,7 @@ pub fn reconstruct(
         views: reconstructed,
         calibration,
         rectification,
+        search_range,
         condition_number,
         timings,
         warnings,

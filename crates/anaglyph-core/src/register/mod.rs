@@ -20,10 +20,12 @@
 
 mod multi_baseline;
 mod pairwise;
+mod search_range;
 mod warp;
 
 pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
+pub use search_range::{estimate_search_range, SearchRange};
 pub use warp::{gather_measurements, NormalisedView, Visibility, CONSISTENCY_PX};
 
 use crate::rig::Rig;
