@@ -4,7 +4,8 @@
 //! ```text
 //! captures + white boards -> rectify (when the cameras carry calibrations)
 //!   -> calibrate (C's units, saturation masked)
-//!   -> register (a disparity map per view) -> warp every capture to each requested view
+//!   -> register (the search range from a coarse pass when automatic; a disparity map per
+//!      view) -> warp every capture to each requested view
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
 //! ```
 //!
