@@ -6,10 +6,13 @@
 //!
 //! `cargo run --release --example light_field_quality -- [WIDTH] [HEIGHT]`
 //! (default 640 480); `ANAGLYPH_PRESETS=tabletop` and
-//! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run.
+//! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run;
+//! `ANAGLYPH_REFINEMENTS=none,6:1e-4` lists the guided refinements scored for each mode
+//! (`none`, or radius:epsilon; registration runs once per mode).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{ArrayGeometry, RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile, PRESETS};
@@ -38,11 +41,27 @@ fn main() -> anyhow::Result<()> {
         Ok(list) => list.split(',').map(str::to_string).collect(),
         Err(_) => vec!["truth".into(), "pairwise".into(), "multi-baseline".into()],
     };
+    let refinements: Vec<Option<GuidedRefinement>> = std::env::var("ANAGLYPH_REFINEMENTS")
+        .unwrap_or_else(|_| "none,6:1e-4".into())
+        .split(',')
+        .map(|item| -> anyhow::Result<_> {
+            if item == "none" {
+                return Ok(None);
+            }
+            let (radius, epsilon) = item
+                .split_once(':')
+                .ok_or_else(|| anyhow::anyhow!("refinement {item}: expected none or R:EPS"))?;
+            Ok(Some(GuidedRefinement {
+                radius: radius.parse()?,
+                epsilon: epsilon.parse()?,
+            }))
+        })
+        .collect::<anyhow::Result<_>>()?;
     let rig = Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into())?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let network = MatchingNetwork::default_fast()?;
-    println!("| scene | registration | r0c0 PSNR | r0c0 SSIM | r0c0 seen-by-all PSNR | all views PSNR | all views SSIM | seconds |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| scene | registration | refinement | r0c0 PSNR | r0c0 SSIM | r0c0 seen-by-all PSNR | all views PSNR | all views SSIM | seconds |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for preset in &presets {
         let scene = Scene::resolve(SceneFile::preset(preset)?, std::path::Path::new("."))?;
         let settings = SimulationSettings {
@@ -92,7 +111,7 @@ fn main() -> anyhow::Result<()> {
                 "multi-baseline" => (RegistrationMode::MultiBaseline, None),
                 other => anyhow::bail!("unknown mode {other}"),
             };
-            let pipeline = PipelineSettings {
+            let mut pipeline = PipelineSettings {
                 registration: RegistrationSettings {
                     mode: registration_mode,
                     cost: MatchingCost::Learned(&network),
@@ -104,55 +123,76 @@ fn main() -> anyhow::Result<()> {
                 views: None,
                 given_disparities: given,
                 automatic_search_range: false,
+                refinement: refinements[0],
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
             let seconds = start.elapsed().as_secs_f64();
-            let nb = field.bands.len();
-            let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
-            let mut reference = None;
-            for (i, view) in field.views.iter().enumerate() {
-                let truth = &simulation.views[i].truth;
-                let all = score_cube(truth, &view.reflectance, width, height, nb, None)?;
-                psnr_sum += all.psnr;
-                ssim_sum += all.ssim;
-                if i == 0 {
-                    let mask =
-                        seen_by_all_views(&truth_maps, &positions, 0, &geometry, width, height);
-                    let seen =
-                        score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
-                    reference = Some((all, seen));
+            // The other refinements reuse this registration.
+            pipeline.given_disparities =
+                Some(field.views.iter().map(|v| v.disparity.clone()).collect());
+            for (k, &refinement) in refinements.iter().enumerate() {
+                let (field, seconds) = if k == 0 {
+                    (field.clone(), seconds)
+                } else {
+                    pipeline.refinement = refinement;
+                    let start = Instant::now();
+                    let refined = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
+                    (refined, start.elapsed().as_secs_f64())
+                };
+                let label = match refinement {
+                    None => "none".to_string(),
+                    Some(r) => format!("guided r={} ε={:e}", r.radius, r.epsilon),
+                };
+                let nb = field.bands.len();
+                let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
+                let mut reference = None;
+                for (i, view) in field.views.iter().enumerate() {
+                    let truth = &simulation.views[i].truth;
+                    let all = score_cube(truth, &view.reflectance, width, height, nb, None)?;
+                    psnr_sum += all.psnr;
+                    ssim_sum += all.ssim;
+                    if i == 0 {
+                        let mask =
+                            seen_by_all_views(&truth_maps, &positions, 0, &geometry, width, height);
+                        let seen =
+                            score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
+                        reference = Some((all, seen));
+                    }
                 }
-            }
-            let n = field.views.len() as f64;
-            if let Some((all, seen)) = reference {
-                println!(
-                    "| {preset} | {mode} | {:.2} | {:.4} | {:.2} | {:.2} | {:.4} | {seconds:.1} |",
+                let n = field.views.len() as f64;
+                if let Some((all, seen)) = reference {
+                    println!(
+                    "| {preset} | {mode} | {label} | {:.2} | {:.4} | {:.2} | {:.2} | {:.4} | {seconds:.1} |",
                     all.psnr,
                     all.ssim,
                     seen.psnr,
                     psnr_sum / n,
                     ssim_sum / n
                 );
+                }
+                eprintln!("{preset} {mode} {label}: {:?}", field.timings);
+                if k > 0 {
+                    continue;
+                }
+                for (view, truth) in field.views.iter().zip(&truth_maps) {
+                    let (bad, total) = view
+                        .disparity
+                        .iter()
+                        .zip(truth)
+                        .filter(|(_, t)| t.is_finite() && **t > 0.0)
+                        .fold((0, 0), |(b, n), (e, t)| {
+                            (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
+                        });
+                    eprint!(
+                        " r{}c{} bad-2 {:.1} %",
+                        view.row,
+                        view.col,
+                        100.0 * bad as f64 / total.max(1) as f64
+                    );
+                }
+                eprintln!();
             }
-            eprintln!("{preset} {mode}: {:?}", field.timings);
-            for (view, truth) in field.views.iter().zip(&truth_maps) {
-                let (bad, total) = view
-                    .disparity
-                    .iter()
-                    .zip(truth)
-                    .filter(|(_, t)| t.is_finite() && **t > 0.0)
-                    .fold((0, 0), |(b, n), (e, t)| {
-                        (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
-                    });
-                eprint!(
-                    " r{}c{} bad-2 {:.1} %",
-                    view.row,
-                    view.col,
-                    100.0 * bad as f64 / total.max(1) as f64
-                );
-            }
-            eprintln!();
         }
     }
     Ok(())

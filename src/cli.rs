@@ -3,6 +3,7 @@
 
 use anaglyph_core::demux::Solver;
 use anaglyph_core::filters::SelectionCriterion;
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::rig::OutOfBand;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -501,6 +502,13 @@ fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
     }
 }
 
+fn parse_positive(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("'{text}' (expected a finite number > 0)")),
+    }
+}
+
 fn parse_views(text: &str) -> Result<ViewList, String> {
     if text.trim().eq_ignore_ascii_case("all") {
         return Ok(ViewList::All);
@@ -586,6 +594,17 @@ pub struct ReconstructArgs {
     pub saturation: f32,
     #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
     pub solver: SolverArg,
+    /// Leave each view's cube as demultiplexed (the paper) instead of refining it with a
+    /// guided filter whose guide is the view's own capture.
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Window half-width of the guided refinement, pixels.
+    #[arg(long, default_value_t = GuidedRefinement::default().radius as u64,
+          value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub refine_radius: u64,
+    /// Ridge weight ε of the guided refinement (squared reflectance): larger smooths more.
+    #[arg(long, default_value_t = GuidedRefinement::default().epsilon, value_parser = parse_positive)]
+    pub refine_epsilon: f64,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

@@ -653,6 +653,12 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
     assert_eq!(manifest["views"].as_array().unwrap().len(), 8);
     assert_eq!(manifest["calibration"][0]["method"], "white board");
     assert!(manifest["timings"].as_array().unwrap().len() >= 5);
+    assert_eq!(manifest["refinement"]["radius"], 6);
+    assert!(manifest["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|t| t[0] == "refinement"));
 
     let o = anaglyph(
         &[
@@ -687,11 +693,16 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
             "r0c1,r1c2",
             "--true-disparity",
             "sim",
+            "--no-refine",
         ],
         d,
     );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(d.join("rec2/views/r1c2.hdr").is_file() && !d.join("rec2/views/r0c0.hdr").exists());
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("rec2/manifest.json")).unwrap())
+            .unwrap();
+    assert!(manifest["refinement"].is_null());
 }
 
 #[test]
@@ -808,6 +819,10 @@ fn reconstruct_rejects_missing_or_mismatched_captures_cleanly() {
             d,
         ),
         "expected auto or a number",
+    );
+    assert_clean_failure(
+        &run(with(&["--refine-epsilon", "0"])),
+        "expected a finite number > 0",
     );
     std::fs::copy(
         d.join("small/captures/r0c1.png"),

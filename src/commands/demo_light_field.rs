@@ -146,6 +146,7 @@ pub fn run_presets(
             views: None,
             given_disparities: None,
             automatic_search_range: false,
+            refinement: Some(Default::default()),
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -10,6 +10,7 @@ use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
 };
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{resolve_curve, Rig};
 use anyhow::Context;
@@ -114,6 +115,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         },
         automatic_search_range: args.max_disp == SearchRangeArg::Auto && given.is_none(),
         given_disparities: given,
+        refinement: (!args.no_refine).then_some(GuidedRefinement {
+            radius: args.refine_radius as usize,
+            epsilon: args.refine_epsilon,
+        }),
     };
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
@@ -123,6 +128,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             Stage::Registration => "registration",
             Stage::Warping => "warping",
             Stage::Demultiplexing => "demultiplexing",
+            Stage::Refinement => "refinement",
         });
         bar.set_length(total as u64);
         bar.set_position(done as u64);
@@ -146,6 +152,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "saturation": args.saturation,
         "solver": format!("{:?}", settings.demux.solver),
         "lambda": rig.file.reconstruction.lambda,
+        "refinement": settings.refinement,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
     });

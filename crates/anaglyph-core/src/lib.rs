@@ -6,7 +6,8 @@
 //! ```text
 //! spectrum (curves) + filters + rig -> sensing matrix C -> capture (forward model, noise)
 //! scene -> simulate -> captures -> rectify -> stereo -> register (disparity per view, warp)
-//!   -> demux (per-pixel solve of Eq. 6) -> reconstruct (the light field) -> metrics
+//!   -> demux (per-pixel solve of Eq. 6) -> refine (guided by each view's own capture)
+//!   -> reconstruct (the light field) -> metrics
 //! io for the file formats at the edges
 //! ```
 //!
@@ -43,6 +44,7 @@ pub mod io;
 pub mod metrics;
 pub mod reconstruct;
 pub mod rectify;
+pub mod refine;
 pub mod register;
 pub mod rig;
 pub mod scene;

@@ -173,6 +173,7 @@ fn true_disparities_hold_again_after_rectification() {
         views: Some(vec![(0, 0), (1, 2)]),
         given_disparities: Some(truth),
         automatic_search_range: false,
+        refinement: None,
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -238,6 +239,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         views: Some(vec![(0, 0)]),
         given_disparities: None,
         automatic_search_range: false,
+        refinement: None,
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

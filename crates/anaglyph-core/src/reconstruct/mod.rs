@@ -7,6 +7,7 @@
 //!   -> register (the search range from a coarse pass when automatic; a disparity map per
 //!      view) -> warp every capture to each requested view
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
+//!   -> refine (guided by the view's own capture, when enabled)
 //! ```
 //!
 //! In: a loaded [`Rig`] and its [`ArrayCaptures`] (already rectified, or carrying each
@@ -29,6 +30,7 @@ pub use probe_plot::{plot_probe, plot_series, Probe};
 
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
+use crate::refine::{refine_view, GuidedRefinement};
 use crate::register::{
     estimate_search_range, gather_measurements, register_views, ArrayGeometry, GridImage,
     RegistrationSettings, SearchRange, Visibility,
@@ -50,6 +52,7 @@ pub enum Stage {
     Registration,
     Warping,
     Demultiplexing,
+    Refinement,
 }
 
 /// Everything reconstruction can be told.
@@ -68,6 +71,9 @@ pub struct PipelineSettings<'a> {
     pub given_disparities: Option<Vec<Vec<f32>>>,
     /// Choose `registration.max_disp` from the captures ([`estimate_search_range`]).
     pub automatic_search_range: bool,
+    /// Filter each view's cube guided by its own capture ([`crate::refine`]); None: the
+    /// demultiplexed cube as it is (the paper).
+    pub refinement: Option<GuidedRefinement>,
 }
 
 /// One reconstructed view.
@@ -96,6 +102,8 @@ pub struct LightField {
     pub rectification: Option<Rectification>,
     /// The search range chosen from the captures (None: given, or no registration).
     pub search_range: Option<SearchRange>,
+    /// The refinement applied to every view (None: none).
+    pub refinement: Option<GuidedRefinement>,
     pub condition_number: f64,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
@@ -255,7 +263,15 @@ pub fn reconstruct(
         lambda: rig.file.reconstruction.lambda,
         ..settings.demux
     };
-    let (mut warp_seconds, mut demux_seconds) = (0.0, 0.0);
+    let (mut warp_seconds, mut demux_seconds, mut refine_seconds) = (0.0, 0.0, 0.0);
+    let first_rows: Vec<usize> = views
+        .iter()
+        .scan(0, |row, view| {
+            let first = *row;
+            *row += view.channels;
+            Some(first)
+        })
+        .collect();
     let mut reconstructed = Vec::with_capacity(requested.len());
     for (k, &v) in requested.iter().enumerate() {
         let start = Instant::now();
@@ -263,7 +279,7 @@ pub fn reconstruct(
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();
-        let (reflectance, demux) = demultiplex_as::<f32, f32>(
+        let (mut reflectance, demux) = demultiplex_as::<f32, f32>(
             sensing.values(),
             sensing.rows(),
             &measurements,
@@ -273,6 +289,21 @@ pub fn reconstruct(
         )?;
         demux_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Demultiplexing, k + 1, requested.len());
+        if let Some(refinement) = settings.refinement {
+            let start = Instant::now();
+            let white_response: Vec<f64> = (0..views[v].channels)
+                .map(|c| sensing.row(first_rows[v] + c).iter().sum())
+                .collect();
+            refine_view(
+                &mut reflectance,
+                bands.count,
+                &views[v],
+                &white_response,
+                refinement,
+            )?;
+            refine_seconds += start.elapsed().as_secs_f64();
+            progress(Stage::Refinement, k + 1, requested.len());
+        }
         let cam = &rig.cameras[v];
         if visibility.seen_by_all < LOW_VISIBILITY_WARNING && rig.cameras.len() > 1 {
             warnings.push(format!(
@@ -293,6 +324,9 @@ pub fn reconstruct(
     }
     timings.push(("warping".to_string(), warp_seconds));
     timings.push(("demultiplexing".to_string(), demux_seconds));
+    if settings.refinement.is_some() {
+        timings.push(("refinement".to_string(), refine_seconds));
+    }
     Ok(LightField {
         width: w,
         height: h,
@@ -301,6 +335,7 @@ pub fn reconstruct(
         calibration,
         rectification,
         search_range,
+        refinement: settings.refinement,
         condition_number,
         timings,
         warnings,

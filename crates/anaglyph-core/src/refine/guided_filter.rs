@@ -1,0 +1,518 @@
+//! The guided filter of He, Sun and Tang (2013, "Guided image filtering", TPAMI 35(6)),
+//! with a multi-channel guide and a validity mask: in every (2r+1)² window each output band
+//! is modelled as an affine function of the guide, `q = aᵀI + b`, fitted by ridge
+//! regression (ε on the guide's covariance) to the valid pixels, and the fits of all
+//! windows covering a pixel are averaged. Box sums are running sums: O(1) per pixel at
+//! any radius.
+
+use crate::{Error, Result};
+use rayon::prelude::*;
+
+/// Most guide channels (RGB, or RGB plus one more); the per-pixel covariance is inverted
+/// in a fixed-size array.
+pub const MAX_GUIDE_CHANNELS: usize = 4;
+
+/// Window radius and regularisation of the guided filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidedFilter {
+    /// Window half-width: windows are (2r+1)² pixels, clipped at the image border.
+    pub radius: usize,
+    /// Ridge weight ε added to the guide's covariance, in squared guide units; larger
+    /// values smooth more where the guide is flat.
+    pub epsilon: f64,
+}
+
+/// Filters `input` (`height × width × bands`, interleaved) with `guide` (`height × width ×
+/// channels`). Pixels where the input or the guide is not finite are left out of every
+/// window's fit; they keep their input value (NaN stays NaN).
+pub fn guided_filter(
+    guide: &[f32],
+    channels: usize,
+    input: &[f32],
+    bands: usize,
+    width: usize,
+    height: usize,
+    filter: GuidedFilter,
+) -> Result<Vec<f32>> {
+    let n = width * height;
+    if channels == 0 || channels > MAX_GUIDE_CHANNELS {
+        return Err(Error::invalid(
+            "guided filter",
+            format!("{channels} guide channels (expected 1 to {MAX_GUIDE_CHANNELS})"),
+        ));
+    }
+    if bands == 0 || guide.len() != n * channels || input.len() != n * bands {
+        return Err(Error::Shape {
+            op: "guided filter: guide and input against width × height".into(),
+            got: vec![guide.len(), input.len()],
+            expected: vec![n * channels, n * bands],
+        });
+    }
+    if !(filter.epsilon > 0.0) || !filter.epsilon.is_finite() {
+        return Err(Error::invalid(
+            "guided filter",
+            format!("epsilon {} (expected a finite value > 0)", filter.epsilon),
+        ));
+    }
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let valid: Vec<bool> = (0..n)
+        .map(|i| {
+            guide[i * channels..(i + 1) * channels]
+                .iter()
+                .chain(&input[i * bands..(i + 1) * bands])
+                .all(|v| v.is_finite())
+        })
+        .collect();
+    let shared = GuideStatistics::new(guide, channels, &valid, width, height, filter);
+
+    let planes: Vec<Vec<f32>> = (0..bands)
+        .into_par_iter()
+        .map_init(
+            || BandScratch::new(n, channels, BoxSum::new(width, height, filter.radius)),
+            |scratch, band| scratch.filter_band(&shared, input, bands, band),
+        )
+        .collect();
+
+    let mut output = input.to_vec();
+    output
+        .par_chunks_mut(bands * width)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..width {
+                let i = y * width + x;
+                if !valid[i] {
+                    continue;
+                }
+                for (band, plane) in planes.iter().enumerate() {
+                    row[x * bands + band] = plane[i];
+                }
+            }
+        });
+    Ok(output)
+}
+
+/// What every band's fit shares: the guide, its window means and the inverse of its
+/// regularised window covariance.
+struct GuideStatistics<'a> {
+    guide: &'a [f32],
+    channels: usize,
+    valid: &'a [bool],
+    /// Valid pixels per window (0: the window has no fit).
+    count: Vec<f32>,
+    /// Windows with a fit covering each pixel.
+    windows: Vec<f32>,
+    /// Window means of each guide channel, `channels` planes.
+    mean: Vec<Vec<f32>>,
+    /// `(Σ + εI)⁻¹` per pixel, `channels²` values each.
+    inverse: Vec<f32>,
+}
+
+impl<'a> GuideStatistics<'a> {
+    fn new(
+        guide: &'a [f32],
+        channels: usize,
+        valid: &'a [bool],
+        width: usize,
+        height: usize,
+        filter: GuidedFilter,
+    ) -> Self {
+        let n = width * height;
+        let mut boxes = BoxSum::new(width, height, filter.radius);
+        let mut count = vec![0.0f32; n];
+        let indicator: Vec<f32> = valid.iter().map(|&v| f32::from(u8::from(v))).collect();
+        boxes.sum(&indicator, &mut count);
+        let mut windows = vec![0.0f32; n];
+        let has_fit: Vec<f32> = count
+            .iter()
+            .map(|&c| f32::from(u8::from(c > 0.5)))
+            .collect();
+        boxes.sum(&has_fit, &mut windows);
+
+        let mut product = vec![0.0f32; n];
+        let mut mean = Vec::with_capacity(channels);
+        for c in 0..channels {
+            for i in 0..n {
+                product[i] = if valid[i] {
+                    guide[i * channels + c]
+                } else {
+                    0.0
+                };
+            }
+            let mut plane = vec![0.0f32; n];
+            boxes.sum(&product, &mut plane);
+            divide_by_count(&mut plane, &count);
+            mean.push(plane);
+        }
+        let g = channels;
+        let mut covariance = vec![0.0f64; n * g * g];
+        let mut plane = vec![0.0f32; n];
+        for c in 0..g {
+            for d in c..g {
+                for i in 0..n {
+                    product[i] = if valid[i] {
+                        guide[i * g + c] * guide[i * g + d]
+                    } else {
+                        0.0
+                    };
+                }
+                boxes.sum(&product, &mut plane);
+                divide_by_count(&mut plane, &count);
+                for i in 0..n {
+                    let value = plane[i] as f64 - mean[c][i] as f64 * mean[d][i] as f64;
+                    covariance[i * g * g + c * g + d] = value;
+                    covariance[i * g * g + d * g + c] = value;
+                }
+            }
+        }
+        let mut inverse = vec![0.0f32; n * g * g];
+        inverse
+            .par_chunks_mut(g * g)
+            .zip(covariance.par_chunks(g * g))
+            .for_each(|(inv, cov)| {
+                let mut a = [0.0f64; MAX_GUIDE_CHANNELS * MAX_GUIDE_CHANNELS];
+                a[..g * g].copy_from_slice(cov);
+                for c in 0..g {
+                    a[c * g + c] += filter.epsilon;
+                }
+                invert_positive_definite(&mut a[..g * g], g, inv);
+            });
+        GuideStatistics {
+            guide,
+            channels,
+            valid,
+            count,
+            windows,
+            mean,
+            inverse,
+        }
+    }
+}
+
+/// Per-band working planes, reused across the bands a thread filters.
+struct BandScratch {
+    boxes: BoxSum,
+    product: Vec<f32>,
+    mean: Vec<f32>,
+    /// `a` per guide channel, then `b`.
+    coefficients: Vec<Vec<f32>>,
+    averaged: Vec<f32>,
+}
+
+impl BandScratch {
+    fn new(n: usize, channels: usize, boxes: BoxSum) -> Self {
+        BandScratch {
+            boxes,
+            product: vec![0.0; n],
+            mean: vec![0.0; n],
+            coefficients: vec![vec![0.0; n]; channels + 1],
+            averaged: vec![0.0; n],
+        }
+    }
+
+    fn filter_band(
+        &mut self,
+        stats: &GuideStatistics<'_>,
+        input: &[f32],
+        bands: usize,
+        band: usize,
+    ) -> Vec<f32> {
+        let g = stats.channels;
+        let n = stats.valid.len();
+        let value = |i: usize| {
+            if stats.valid[i] {
+                input[i * bands + band]
+            } else {
+                0.0
+            }
+        };
+        for i in 0..n {
+            self.product[i] = value(i);
+        }
+        self.boxes.sum(&self.product, &mut self.mean);
+        divide_by_count(&mut self.mean, &stats.count);
+        // Covariance of each guide channel with the band, into the `a` planes.
+        for c in 0..g {
+            for i in 0..n {
+                self.product[i] = if stats.valid[i] {
+                    input[i * bands + band] * stats.guide[i * g + c]
+                } else {
+                    0.0
+                };
+            }
+            self.boxes.sum(&self.product, &mut self.coefficients[c]);
+            divide_by_count(&mut self.coefficients[c], &stats.count);
+        }
+        // a = (Σ + εI)⁻¹ cov, b = mean_p − aᵀ mean_I, per window.
+        let (a_planes, b_plane) = self.coefficients.split_at_mut(g);
+        let mut cov = [0.0f64; MAX_GUIDE_CHANNELS];
+        for i in 0..n {
+            if stats.count[i] < 0.5 {
+                for plane in a_planes.iter_mut() {
+                    plane[i] = 0.0;
+                }
+                b_plane[0][i] = 0.0;
+                continue;
+            }
+            let mean_p = self.mean[i] as f64;
+            for c in 0..g {
+                cov[c] = a_planes[c][i] as f64 - stats.mean[c][i] as f64 * mean_p;
+            }
+            let inv = &stats.inverse[i * g * g..(i + 1) * g * g];
+            let mut b = mean_p;
+            for c in 0..g {
+                let a: f64 = (0..g).map(|d| inv[c * g + d] as f64 * cov[d]).sum();
+                a_planes[c][i] = a as f32;
+                b -= a * stats.mean[c][i] as f64;
+            }
+            b_plane[0][i] = b as f32;
+        }
+        // Average the fits of the windows covering each pixel and apply them.
+        let mut output = vec![0.0f32; n];
+        for (c, plane) in self.coefficients.iter().enumerate() {
+            self.boxes.sum(plane, &mut self.averaged);
+            for i in 0..n {
+                let coefficient = if stats.windows[i] > 0.5 {
+                    self.averaged[i] / stats.windows[i]
+                } else {
+                    0.0
+                };
+                output[i] += if c < g {
+                    coefficient * stats.guide[i * g + c]
+                } else {
+                    coefficient
+                };
+            }
+        }
+        output
+    }
+}
+
+fn divide_by_count(plane: &mut [f32], count: &[f32]) {
+    for (value, &c) in plane.iter_mut().zip(count) {
+        *value = if c > 0.5 { *value / c } else { 0.0 };
+    }
+}
+
+/// Inverts the symmetric positive definite `a` (`g × g`, overwritten) into `inverse` by
+/// Gauss–Jordan elimination (no pivoting is needed for a positive definite matrix).
+fn invert_positive_definite(a: &mut [f64], g: usize, inverse: &mut [f32]) {
+    let mut inv = [0.0f64; MAX_GUIDE_CHANNELS * MAX_GUIDE_CHANNELS];
+    for c in 0..g {
+        inv[c * g + c] = 1.0;
+    }
+    for k in 0..g {
+        let pivot = a[k * g + k];
+        for j in 0..g {
+            a[k * g + j] /= pivot;
+            inv[k * g + j] /= pivot;
+        }
+        for r in 0..g {
+            if r == k {
+                continue;
+            }
+            let factor = a[r * g + k];
+            if factor == 0.0 {
+                continue;
+            }
+            for j in 0..g {
+                a[r * g + j] -= factor * a[k * g + j];
+                inv[r * g + j] -= factor * inv[k * g + j];
+            }
+        }
+    }
+    for (dst, src) in inverse.iter_mut().zip(&inv[..g * g]) {
+        *dst = *src as f32;
+    }
+}
+
+/// Sums over (2r+1)² windows clipped at the border of a `width × height` plane, by
+/// running sums along rows then columns (accumulated in f64).
+struct BoxSum {
+    width: usize,
+    height: usize,
+    radius: usize,
+    rows: Vec<f64>,
+    columns: Vec<f64>,
+}
+
+impl BoxSum {
+    fn new(width: usize, height: usize, radius: usize) -> Self {
+        BoxSum {
+            width,
+            height,
+            radius,
+            rows: vec![0.0; width * height],
+            columns: vec![0.0; width],
+        }
+    }
+
+    fn sum(&mut self, src: &[f32], dst: &mut [f32]) {
+        let (w, h, r) = (self.width, self.height, self.radius);
+        for (src_row, row) in src.chunks_exact(w).zip(self.rows.chunks_exact_mut(w)) {
+            let mut running: f64 = src_row[..(r + 1).min(w)].iter().map(|&v| v as f64).sum();
+            for x in 0..w {
+                row[x] = running;
+                if x + r + 1 < w {
+                    running += src_row[x + r + 1] as f64;
+                }
+                if x >= r {
+                    running -= src_row[x - r] as f64;
+                }
+            }
+        }
+        self.columns.fill(0.0);
+        for y in 0..(r + 1).min(h) {
+            for (acc, v) in self.columns.iter_mut().zip(&self.rows[y * w..(y + 1) * w]) {
+                *acc += v;
+            }
+        }
+        for y in 0..h {
+            for (out, acc) in dst[y * w..(y + 1) * w].iter_mut().zip(&self.columns) {
+                *out = *acc as f32;
+            }
+            if y + r + 1 < h {
+                let add = &self.rows[(y + r + 1) * w..(y + r + 2) * w];
+                for (acc, v) in self.columns.iter_mut().zip(add) {
+                    *acc += v;
+                }
+            }
+            if y >= r {
+                let remove = &self.rows[(y - r) * w..(y - r + 1) * w];
+                for (acc, v) in self.columns.iter_mut().zip(remove) {
+                    *acc -= v;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute_box_sum(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+        let mut out = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0f64;
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                        s += src[yy * w + xx] as f64;
+                    }
+                }
+                out[y * w + x] = s as f32;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn running_box_sums_match_brute_force_at_every_radius() {
+        let (w, h) = (13, 7);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32 - 3.5).collect();
+        for r in [0, 1, 3, 6, 20] {
+            let mut boxes = BoxSum::new(w, h, r);
+            let mut dst = vec![0.0; w * h];
+            boxes.sum(&src, &mut dst);
+            let expected = brute_box_sum(&src, w, h, r);
+            for (a, b) in dst.iter().zip(&expected) {
+                assert!((a - b).abs() < 1e-4, "radius {r}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_input_affine_in_the_guide_passes_unchanged() {
+        // q = aᵀI + b exactly: every window's fit recovers it (up to the ridge ε).
+        let (w, h, g, bands) = (24, 16, 3, 2);
+        let guide: Vec<f32> = (0..w * h * g)
+            .map(|i| 0.2 + 0.6 * (((i * 7919) % 101) as f32 / 101.0))
+            .collect();
+        let input: Vec<f32> = (0..w * h)
+            .flat_map(|i| {
+                let p = &guide[i * g..(i + 1) * g];
+                [
+                    0.5 * p[0] - 0.2 * p[1] + 0.1 * p[2] + 0.05,
+                    0.3 * p[1] + 0.4 * p[2] - 0.02,
+                ]
+            })
+            .collect();
+        let filter = GuidedFilter {
+            radius: 3,
+            epsilon: 1e-8,
+        };
+        let output = guided_filter(&guide, g, &input, bands, w, h, filter).unwrap();
+        for (a, b) in output.iter().zip(&input) {
+            assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn noise_on_a_flat_patch_is_averaged_and_edges_of_the_guide_survive() {
+        // Two regions split by a guide edge; the input is the region's value plus
+        // alternating noise. The output keeps the step and removes most of the noise.
+        let (w, h) = (40, 20);
+        let guide: Vec<f32> = (0..w * h)
+            .map(|i| if i % w < w / 2 { 0.2 } else { 0.8 })
+            .collect();
+        let truth = |i: usize| if i % w < w / 2 { 0.1f32 } else { 0.6 };
+        let input: Vec<f32> = (0..w * h)
+            .map(|i| truth(i) + if (i + i / w) % 2 == 0 { 0.05 } else { -0.05 })
+            .collect();
+        let filter = GuidedFilter {
+            radius: 2,
+            epsilon: 1e-4,
+        };
+        let output = guided_filter(&guide, 1, &input, 1, w, h, filter).unwrap();
+        let rms = |v: &[f32]| {
+            let s: f32 = v
+                .iter()
+                .enumerate()
+                .map(|(i, x)| (x - truth(i)).powi(2))
+                .sum();
+            (s / v.len() as f32).sqrt()
+        };
+        assert!((rms(&input) - 0.05).abs() < 1e-6);
+        assert!(rms(&output) < 0.005, "rms {}", rms(&output));
+    }
+
+    #[test]
+    fn invalid_pixels_keep_their_value_and_stay_out_of_the_fits() {
+        let (w, h) = (10, 10);
+        let guide = vec![0.5f32; w * h];
+        let mut input = vec![0.3f32; w * h];
+        input[11] = f32::NAN;
+        input[55] = 100.0;
+        let mut guide_with_gap = guide.clone();
+        guide_with_gap[55] = f32::NAN; // a saturated guide pixel: its input is not used
+        let filter = GuidedFilter {
+            radius: 2,
+            epsilon: 1e-4,
+        };
+        let output = guided_filter(&guide_with_gap, 1, &input, 1, w, h, filter).unwrap();
+        assert!(output[11].is_nan());
+        assert_eq!(output[55], 100.0);
+        for (i, v) in output.iter().enumerate() {
+            if i != 11 && i != 55 {
+                assert!((v - 0.3).abs() < 1e-5, "pixel {i}: {v}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_settings_and_sizes_are_refused() {
+        let filter = GuidedFilter {
+            radius: 1,
+            epsilon: 1e-4,
+        };
+        assert!(guided_filter(&[0.0; 4], 1, &[0.0; 3], 1, 2, 2, filter).is_err());
+        assert!(guided_filter(&[0.0; 20], 5, &[0.0; 4], 1, 2, 2, filter).is_err());
+        let zero = GuidedFilter {
+            epsilon: 0.0,
+            ..filter
+        };
+        assert!(guided_filter(&[0.0; 4], 1, &[0.0; 4], 1, 2, 2, zero).is_err());
+    }
+}

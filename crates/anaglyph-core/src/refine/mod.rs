@@ -1,0 +1,89 @@
+//! Guided spectral refinement, the stage after demultiplexing (beyond the paper): each
+//! view's reflectance cube is filtered with that view's own capture as the guide
+//! ([`guided_filter`]).
+//!
+//! Why: a view's own capture is the one measurement that needs no warping. The other
+//! cameras' measurements reach it through interpolation at fractional disparities and
+//! carry sensor noise that the solve amplifies, so the per-pixel spectrum is noisy and
+//! blurred across texture and occlusion edges. In each small window the reflectance bands
+//! are well modelled as an affine function of the view's own colour (few materials per
+//! window); fitting that model by ridge regression and averaging the fits keeps the edges
+//! of the capture and averages the noise. On the paper rig's presets this takes the
+//! reference view from 29.3 to 34 dB (see the README).
+//!
+//! In: a view's reflectance (`pixels × bands`, NaN where unmeasured), its white-normalised
+//! capture. Out: the refined reflectance; unmeasured pixels stay NaN, and pixels whose own
+//! capture is saturated keep their demultiplexed value.
+
+mod guided_filter;
+
+pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
+
+use crate::register::NormalisedView;
+use crate::{Error, Result};
+use serde::Serialize;
+
+/// Settings of the refinement stage, as recorded in the manifest.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GuidedRefinement {
+    /// Window half-width in pixels.
+    pub radius: usize,
+    /// Ridge weight on the guide's window covariance, in squared reflectance units: the
+    /// guide variance under which a window is smoothed rather than followed.
+    pub epsilon: f64,
+}
+
+impl Default for GuidedRefinement {
+    fn default() -> Self {
+        GuidedRefinement {
+            radius: 6,
+            epsilon: 1e-4,
+        }
+    }
+}
+
+/// Refines `reflectance` (`height × width × bands`) in place, guided by `view`, whose
+/// channel c is divided by `white_response[c]` (its value for a perfect white, in C's
+/// units) so that the guide reads as reflectance.
+pub fn refine_view(
+    reflectance: &mut Vec<f32>,
+    bands: usize,
+    view: &NormalisedView,
+    white_response: &[f64],
+    settings: GuidedRefinement,
+) -> Result<()> {
+    if white_response.len() != view.channels
+        || white_response.iter().any(|r| !(*r > 0.0) || !r.is_finite())
+    {
+        return Err(Error::invalid(
+            "refinement",
+            format!(
+                "camera r{}c{}: white responses {white_response:?} for {} channels",
+                view.row, view.col, view.channels
+            ),
+        ));
+    }
+    let guide: Vec<f32> = view
+        .data
+        .chunks_exact(view.channels)
+        .flat_map(|pixel| {
+            pixel
+                .iter()
+                .zip(white_response)
+                .map(|(&v, &r)| (v as f64 / r) as f32)
+        })
+        .collect();
+    *reflectance = guided_filter(
+        &guide,
+        view.channels,
+        reflectance,
+        bands,
+        view.width,
+        view.height,
+        GuidedFilter {
+            radius: settings.radius,
+            epsilon: settings.epsilon,
+        },
+    )?;
+    Ok(())
+}
