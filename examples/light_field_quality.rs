@@ -7,8 +7,9 @@
 //! `cargo run --release --example light_field_quality -- [WIDTH] [HEIGHT]`
 //! (default 640 480); `ANAGLYPH_PRESETS=tabletop` and
 //! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run;
-//! `ANAGLYPH_REFINEMENTS=none,6:1e-4` lists the guided refinements scored for each mode
-//! (`none`, or radius:epsilon; registration runs once per mode).
+//! `ANAGLYPH_REFINEMENTS=none,4:1e-4:1.5` lists the guided refinements scored for each
+//! mode (`none`, or radius:epsilon:confidence with confidence 0 for equal weights;
+//! registration runs once per mode).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
@@ -42,18 +43,21 @@ fn main() -> anyhow::Result<()> {
         Err(_) => vec!["truth".into(), "pairwise".into(), "multi-baseline".into()],
     };
     let refinements: Vec<Option<GuidedRefinement>> = std::env::var("ANAGLYPH_REFINEMENTS")
-        .unwrap_or_else(|_| "none,6:1e-4".into())
+        .unwrap_or_else(|_| "none,4:1e-4:1.5".into())
         .split(',')
         .map(|item| -> anyhow::Result<_> {
             if item == "none" {
                 return Ok(None);
             }
-            let (radius, epsilon) = item
-                .split_once(':')
-                .ok_or_else(|| anyhow::anyhow!("refinement {item}: expected none or R:EPS"))?;
+            let fields: Vec<&str> = item.split(':').collect();
+            let [radius, epsilon, confidence] = fields[..] else {
+                anyhow::bail!("refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE");
+            };
+            let confidence: f64 = confidence.parse()?;
             Ok(Some(GuidedRefinement {
                 radius: radius.parse()?,
                 epsilon: epsilon.parse()?,
+                confidence_scale: (confidence > 0.0).then_some(confidence),
             }))
         })
         .collect::<anyhow::Result<_>>()?;
@@ -142,7 +146,12 @@ fn main() -> anyhow::Result<()> {
                 };
                 let label = match refinement {
                     None => "none".to_string(),
-                    Some(r) => format!("guided r={} ε={:e}", r.radius, r.epsilon),
+                    Some(r) => format!(
+                        "guided r={} ε={:e} confidence {}",
+                        r.radius,
+                        r.epsilon,
+                        r.confidence_scale.unwrap_or(0.0)
+                    ),
                 };
                 let nb = field.bands.len();
                 let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);

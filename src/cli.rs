@@ -502,6 +502,13 @@ fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
     }
 }
 
+fn parse_non_negative(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("'{text}' (expected a finite number >= 0)")),
+    }
+}
+
 fn parse_positive(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
@@ -605,6 +612,11 @@ pub struct ReconstructArgs {
     /// Ridge weight ε of the guided refinement (squared reflectance): larger smooths more.
     #[arg(long, default_value_t = GuidedRefinement::default().epsilon, value_parser = parse_positive)]
     pub refine_epsilon: f64,
+    /// Confidence of the guided refinement: pixels weigh 1/(1+(ρ/σ)²), ρ their residual
+    /// ‖P − Cŝ‖ and σ this multiple of the view's median residual; 0: equal weights.
+    #[arg(long, default_value_t = GuidedRefinement::default().confidence_scale.unwrap_or(0.0),
+          value_parser = parse_non_negative)]
+    pub refine_confidence: f64,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

@@ -653,7 +653,9 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
     assert_eq!(manifest["views"].as_array().unwrap().len(), 8);
     assert_eq!(manifest["calibration"][0]["method"], "white board");
     assert!(manifest["timings"].as_array().unwrap().len() >= 5);
-    assert_eq!(manifest["refinement"]["radius"], 6);
+    assert_eq!(manifest["refinement"]["radius"], 4);
+    assert_eq!(manifest["refinement"]["confidence_scale"], 1.5);
+    assert!(manifest["views"][0]["median_residual"].as_f64().unwrap() > 0.0);
     assert!(manifest["timings"]
         .as_array()
         .unwrap()

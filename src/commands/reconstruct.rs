@@ -118,6 +118,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         refinement: (!args.no_refine).then_some(GuidedRefinement {
             radius: args.refine_radius as usize,
             epsilon: args.refine_epsilon,
+            confidence_scale: (args.refine_confidence > 0.0).then_some(args.refine_confidence),
         }),
     };
     let loading = started.elapsed().as_secs_f64();

@@ -171,7 +171,11 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
         .collect();
     let mut scores = Vec::new();
     for maps in [truth, estimated_maps] {
-        for refinement in [None, Some(GuidedRefinement::default())] {
+        let uniform = GuidedRefinement {
+            confidence_scale: None,
+            ..GuidedRefinement::default()
+        };
+        for refinement in [None, Some(uniform), Some(GuidedRefinement::default())] {
             let mut pipeline = settings(
                 RegistrationMode::Pairwise,
                 MatchingCost::Census,
@@ -188,29 +192,33 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
             scores.push((reference, seen, mean));
         }
     }
-    eprintln!(
-        "true: {:?} -> {:?}; estimated: {:?} -> {:?}",
-        scores[0], scores[1], scores[2], scores[3]
-    );
-    // Measured (r0c0 / seen by all / all views): true 26.01 / 26.63 / 27.71 -> 30.37 /
-    // 30.37 / 33.52 dB; estimated 24.02 / 25.09 / 25.41 -> 29.13 / 29.69 / 31.77 dB.
-    for pair in scores.chunks(2) {
-        let (before, after) = (pair[0], pair[1]);
-        assert!(after.0 > before.0 + 3.5, "r0c0 {} -> {}", before.0, after.0);
+    eprintln!("true: {:?}; estimated: {:?}", &scores[..3], &scores[3..]);
+    // Measured (r0c0 / seen by all / all views), none -> equal weights -> confidence:
+    // true 26.01 / 26.63 / 27.71 -> 30.60 / 30.78 / 33.18 -> 32.29 / 32.17 / 35.98 dB;
+    // estimated 24.02 / 25.09 / 25.41 -> 28.94 / 29.93 / 31.09 -> 30.89 / 31.74 / 34.48 dB.
+    for triple in scores.chunks(3) {
+        let (before, uniform, after) = (triple[0], triple[1], triple[2]);
+        assert!(after.0 > before.0 + 5.5, "r0c0 {} -> {}", before.0, after.0);
         assert!(
-            after.1 > before.1 + 3.0,
+            after.1 > before.1 + 5.0,
             "seen by all {} -> {}",
             before.1,
             after.1
         );
         assert!(
-            after.2 > before.2 + 4.0,
+            after.2 > before.2 + 7.5,
             "all views {} -> {}",
             before.2,
             after.2
         );
+        assert!(
+            after.0 > uniform.0 + 1.2,
+            "confidence {} against equal weights {}",
+            after.0,
+            uniform.0
+        );
     }
-    assert!(scores[1].0 > 29.8 && scores[3].0 > 28.6, "{scores:?}");
+    assert!(scores[2].0 > 31.8 && scores[5].0 > 30.4, "{scores:?}");
 }
 
 #[test]

@@ -30,7 +30,7 @@ pub use probe_plot::{plot_probe, plot_series, Probe};
 
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
-use crate::refine::{refine_view, GuidedRefinement};
+use crate::refine::{confidence_weights, measurement_residuals, refine_view, GuidedRefinement};
 use crate::register::{
     estimate_search_range, gather_measurements, register_views, ArrayGeometry, GridImage,
     RegistrationSettings, SearchRange, Visibility,
@@ -87,6 +87,9 @@ pub struct ReconstructedView {
     pub disparity: Vec<f32>,
     pub visibility: Visibility,
     pub demux: DemuxReport,
+    /// Median rms residual `‖P − Cŝ‖` of the view's pixels in reflectance units, before
+    /// refinement (None: not computed). It needs no truth: misregistration raises it.
+    pub median_residual: Option<f64>,
 }
 
 /// The multispectral light field of an array.
@@ -279,16 +282,44 @@ pub fn reconstruct(
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();
-        let (mut reflectance, demux) = demultiplex_as::<f32, f32>(
+        // With confidence weights, the solve keeps every knot of C (the residual needs
+        // them) and the reported bands are cut out afterwards.
+        let confidence = settings.refinement.and_then(|r| r.confidence_scale);
+        let solved = if confidence.is_some() {
+            0..sensing.cols()
+        } else {
+            output.clone()
+        };
+        let (spectra, demux) = demultiplex_as::<f32, f32>(
             sensing.values(),
             sensing.rows(),
             &measurements,
             None,
-            output.clone(),
+            solved.clone(),
             &options,
         )?;
         demux_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Demultiplexing, k + 1, requested.len());
+        let (mut reflectance, weights, median_residual) = match confidence {
+            None => (spectra, None, None),
+            Some(scale) => {
+                let start = Instant::now();
+                let residuals = measurement_residuals(
+                    sensing.values(),
+                    sensing.rows(),
+                    &measurements,
+                    &spectra,
+                )?;
+                let (weights, median) = confidence_weights(&residuals, scale)?;
+                let knots = solved.len();
+                let reflectance: Vec<f32> = spectra
+                    .chunks_exact(knots)
+                    .flat_map(|s| s[output.clone()].iter().copied())
+                    .collect();
+                refine_seconds += start.elapsed().as_secs_f64();
+                (reflectance, Some(weights), Some(median))
+            }
+        };
         if let Some(refinement) = settings.refinement {
             let start = Instant::now();
             let white_response: Vec<f64> = (0..views[v].channels)
@@ -299,6 +330,7 @@ pub fn reconstruct(
                 bands.count,
                 &views[v],
                 &white_response,
+                weights.as_deref(),
                 refinement,
             )?;
             refine_seconds += start.elapsed().as_secs_f64();
@@ -320,6 +352,7 @@ pub fn reconstruct(
             disparity: disparities[v].clone(),
             visibility,
             demux,
+            median_residual,
         });
     }
     timings.push(("warping".to_string(), warp_seconds));
@@ -450,6 +483,7 @@ pub struct ViewSummary {
     pub demux: DemuxReport,
     pub disparity_range: [f32; 2],
     pub unmeasured_pixels: usize,
+    pub median_residual: Option<f64>,
 }
 
 impl ReconstructedView {
@@ -465,6 +499,7 @@ impl ReconstructedView {
             demux: self.demux.clone(),
             disparity_range: range,
             unmeasured_pixels: self.demux.unmeasured_pixels,
+            median_residual: self.median_residual,
         }
     }
 }

@@ -1,8 +1,9 @@
 //! The guided filter of He, Sun and Tang (2013, "Guided image filtering", TPAMI 35(6)),
-//! with a multi-channel guide and a validity mask: in every (2r+1)² window each output band
-//! is modelled as an affine function of the guide, `q = aᵀI + b`, fitted by ridge
-//! regression (ε on the guide's covariance) to the valid pixels, and the fits of all
-//! windows covering a pixel are averaged. Box sums are running sums: O(1) per pixel at
+//! with a multi-channel guide and per-pixel weights: in every (2r+1)² window each output
+//! band is modelled as an affine function of the guide, `q = aᵀI + b`, fitted by weighted
+//! ridge regression (ε on the guide's covariance), and the fits of all windows covering a
+//! pixel are averaged. Invalid pixels weigh nothing; a confidence (how well a pixel's
+//! measurements agree) lets reliable pixels dominate the fits. Box sums are running sums: O(1) per pixel at
 //! any radius.
 
 use crate::{Error, Result};
@@ -22,12 +23,18 @@ pub struct GuidedFilter {
     pub epsilon: f64,
 }
 
+/// Weight under which a window is treated as empty (no fit): a thousandth of one pixel.
+const EMPTY_WINDOW: f32 = 1e-3;
+
 /// Filters `input` (`height × width × bands`, interleaved) with `guide` (`height × width ×
-/// channels`). Pixels where the input or the guide is not finite are left out of every
-/// window's fit; they keep their input value (NaN stays NaN).
+/// channels`). `weights` (one per pixel, ≥ 0; None: all 1) weigh each pixel in the fits.
+/// Pixels where the input or the guide is not finite weigh nothing and keep their input
+/// value (NaN stays NaN).
+#[allow(clippy::too_many_arguments)]
 pub fn guided_filter(
     guide: &[f32],
     channels: usize,
+    weights: Option<&[f32]>,
     input: &[f32],
     bands: usize,
     width: usize,
@@ -48,6 +55,17 @@ pub fn guided_filter(
             expected: vec![n * channels, n * bands],
         });
     }
+    if let Some(weights) = weights {
+        if weights.len() != n || weights.iter().any(|w| !(*w >= 0.0) || !w.is_finite()) {
+            return Err(Error::invalid(
+                "guided filter",
+                format!(
+                    "{} weights for {n} pixels, each finite and >= 0",
+                    weights.len()
+                ),
+            ));
+        }
+    }
     if !(filter.epsilon > 0.0) || !filter.epsilon.is_finite() {
         return Err(Error::invalid(
             "guided filter",
@@ -65,13 +83,28 @@ pub fn guided_filter(
                 .all(|v| v.is_finite())
         })
         .collect();
-    let shared = GuideStatistics::new(guide, channels, &valid, width, height, filter);
+    let weight: Vec<f32> = (0..n)
+        .map(|i| match (valid[i], weights) {
+            (false, _) => 0.0,
+            (true, None) => 1.0,
+            (true, Some(w)) => w[i],
+        })
+        .collect();
+    let shared = GuideStatistics::new(guide, channels, &weight, width, height, filter);
 
+    // Band planes: each band's passes then read memory in order (the interleaved cube
+    // would be read once per cache line per band and per pass).
+    let mut planar = vec![0.0f32; n * bands];
+    for (i, pixel) in input.chunks_exact(bands).enumerate() {
+        for (band, &v) in pixel.iter().enumerate() {
+            planar[band * n + i] = v;
+        }
+    }
     let planes: Vec<Vec<f32>> = (0..bands)
         .into_par_iter()
         .map_init(
             || BandScratch::new(n, channels, BoxSum::new(width, height, filter.radius)),
-            |scratch, band| scratch.filter_band(&shared, input, bands, band),
+            |scratch, band| scratch.filter_band(&shared, &planar[band * n..(band + 1) * n]),
         )
         .collect();
 
@@ -98,8 +131,9 @@ pub fn guided_filter(
 struct GuideStatistics<'a> {
     guide: &'a [f32],
     channels: usize,
-    valid: &'a [bool],
-    /// Valid pixels per window (0: the window has no fit).
+    /// Weight of each pixel in the fits (0: not used).
+    weight: &'a [f32],
+    /// Summed weight per window (below [`EMPTY_WINDOW`]: the window has no fit).
     count: Vec<f32>,
     /// Windows with a fit covering each pixel.
     windows: Vec<f32>,
@@ -113,7 +147,7 @@ impl<'a> GuideStatistics<'a> {
     fn new(
         guide: &'a [f32],
         channels: usize,
-        valid: &'a [bool],
+        weight: &'a [f32],
         width: usize,
         height: usize,
         filter: GuidedFilter,
@@ -121,12 +155,11 @@ impl<'a> GuideStatistics<'a> {
         let n = width * height;
         let mut boxes = BoxSum::new(width, height, filter.radius);
         let mut count = vec![0.0f32; n];
-        let indicator: Vec<f32> = valid.iter().map(|&v| f32::from(u8::from(v))).collect();
-        boxes.sum(&indicator, &mut count);
+        boxes.sum(weight, &mut count);
         let mut windows = vec![0.0f32; n];
         let has_fit: Vec<f32> = count
             .iter()
-            .map(|&c| f32::from(u8::from(c > 0.5)))
+            .map(|&c| f32::from(u8::from(c > EMPTY_WINDOW)))
             .collect();
         boxes.sum(&has_fit, &mut windows);
 
@@ -134,8 +167,8 @@ impl<'a> GuideStatistics<'a> {
         let mut mean = Vec::with_capacity(channels);
         for c in 0..channels {
             for i in 0..n {
-                product[i] = if valid[i] {
-                    guide[i * channels + c]
+                product[i] = if weight[i] > 0.0 {
+                    weight[i] * guide[i * channels + c]
                 } else {
                     0.0
                 };
@@ -151,8 +184,8 @@ impl<'a> GuideStatistics<'a> {
         for c in 0..g {
             for d in c..g {
                 for i in 0..n {
-                    product[i] = if valid[i] {
-                        guide[i * g + c] * guide[i * g + d]
+                    product[i] = if weight[i] > 0.0 {
+                        weight[i] * guide[i * g + c] * guide[i * g + d]
                     } else {
                         0.0
                     };
@@ -181,7 +214,7 @@ impl<'a> GuideStatistics<'a> {
         GuideStatistics {
             guide,
             channels,
-            valid,
+            weight,
             count,
             windows,
             mean,
@@ -211,32 +244,23 @@ impl BandScratch {
         }
     }
 
-    fn filter_band(
-        &mut self,
-        stats: &GuideStatistics<'_>,
-        input: &[f32],
-        bands: usize,
-        band: usize,
-    ) -> Vec<f32> {
+    fn filter_band(&mut self, stats: &GuideStatistics<'_>, input: &[f32]) -> Vec<f32> {
         let g = stats.channels;
-        let n = stats.valid.len();
-        let value = |i: usize| {
-            if stats.valid[i] {
-                input[i * bands + band]
+        let n = stats.weight.len();
+        for i in 0..n {
+            self.product[i] = if stats.weight[i] > 0.0 {
+                stats.weight[i] * input[i]
             } else {
                 0.0
-            }
-        };
-        for i in 0..n {
-            self.product[i] = value(i);
+            };
         }
         self.boxes.sum(&self.product, &mut self.mean);
         divide_by_count(&mut self.mean, &stats.count);
         // Covariance of each guide channel with the band, into the `a` planes.
         for c in 0..g {
             for i in 0..n {
-                self.product[i] = if stats.valid[i] {
-                    input[i * bands + band] * stats.guide[i * g + c]
+                self.product[i] = if stats.weight[i] > 0.0 {
+                    stats.weight[i] * input[i] * stats.guide[i * g + c]
                 } else {
                     0.0
                 };
@@ -248,7 +272,7 @@ impl BandScratch {
         let (a_planes, b_plane) = self.coefficients.split_at_mut(g);
         let mut cov = [0.0f64; MAX_GUIDE_CHANNELS];
         for i in 0..n {
-            if stats.count[i] < 0.5 {
+            if !(stats.count[i] > EMPTY_WINDOW) {
                 for plane in a_planes.iter_mut() {
                     plane[i] = 0.0;
                 }
@@ -291,7 +315,7 @@ impl BandScratch {
 
 fn divide_by_count(plane: &mut [f32], count: &[f32]) {
     for (value, &c) in plane.iter_mut().zip(count) {
-        *value = if c > 0.5 { *value / c } else { 0.0 };
+        *value = if c > EMPTY_WINDOW { *value / c } else { 0.0 };
     }
 }
 
@@ -327,13 +351,13 @@ fn invert_positive_definite(a: &mut [f64], g: usize, inverse: &mut [f32]) {
     }
 }
 
-/// Sums over (2r+1)² windows clipped at the border of a `width × height` plane, by
-/// running sums along rows then columns (accumulated in f64).
+/// Sums over (2r+1)² windows clipped at the border of a `width × height` plane, in one
+/// pass: running column sums (f64) are moved down one row at a time and each output row
+/// is a running sum along them.
 struct BoxSum {
     width: usize,
     height: usize,
     radius: usize,
-    rows: Vec<f64>,
     columns: Vec<f64>,
 }
 
@@ -343,46 +367,65 @@ impl BoxSum {
             width,
             height,
             radius,
-            rows: vec![0.0; width * height],
             columns: vec![0.0; width],
         }
     }
 
     fn sum(&mut self, src: &[f32], dst: &mut [f32]) {
         let (w, h, r) = (self.width, self.height, self.radius);
-        for (src_row, row) in src.chunks_exact(w).zip(self.rows.chunks_exact_mut(w)) {
-            let mut running: f64 = src_row[..(r + 1).min(w)].iter().map(|&v| v as f64).sum();
-            for x in 0..w {
-                row[x] = running;
-                if x + r + 1 < w {
-                    running += src_row[x + r + 1] as f64;
-                }
-                if x >= r {
-                    running -= src_row[x - r] as f64;
-                }
-            }
-        }
-        self.columns.fill(0.0);
+        let columns = &mut self.columns;
+        columns.fill(0.0);
         for y in 0..(r + 1).min(h) {
-            for (acc, v) in self.columns.iter_mut().zip(&self.rows[y * w..(y + 1) * w]) {
-                *acc += v;
+            for (acc, v) in columns.iter_mut().zip(&src[y * w..(y + 1) * w]) {
+                *acc += *v as f64;
             }
         }
         for y in 0..h {
-            for (out, acc) in dst[y * w..(y + 1) * w].iter_mut().zip(&self.columns) {
-                *out = *acc as f32;
-            }
+            running_sum(columns, r, &mut dst[y * w..(y + 1) * w]);
             if y + r + 1 < h {
-                let add = &self.rows[(y + r + 1) * w..(y + r + 2) * w];
-                for (acc, v) in self.columns.iter_mut().zip(add) {
-                    *acc += v;
+                let add = &src[(y + r + 1) * w..(y + r + 2) * w];
+                for (acc, v) in columns.iter_mut().zip(add) {
+                    *acc += *v as f64;
                 }
             }
             if y >= r {
-                let remove = &self.rows[(y - r) * w..(y - r + 1) * w];
-                for (acc, v) in self.columns.iter_mut().zip(remove) {
-                    *acc -= v;
+                let remove = &src[(y - r) * w..(y - r + 1) * w];
+                for (acc, v) in columns.iter_mut().zip(remove) {
+                    *acc -= *v as f64;
                 }
+            }
+        }
+    }
+}
+
+/// `out[x] = Σ values[x − r ..= x + r]` (clipped), in three branch-free stretches.
+fn running_sum(values: &[f64], r: usize, out: &mut [f32]) {
+    let w = values.len();
+    let mut running: f64 = values[..(r + 1).min(w)].iter().sum();
+    // x + r + 1 < w and x < r: the window only grows.
+    let grow_end = r.min(w.saturating_sub(r + 1));
+    for x in 0..grow_end {
+        out[x] = running as f32;
+        running += values[x + r + 1];
+    }
+    if w > 2 * r + 1 {
+        // Full windows: one value enters, one leaves.
+        for x in grow_end..w - r - 1 {
+            out[x] = running as f32;
+            running += values[x + r + 1] - values[x - r];
+        }
+        for x in w - r - 1..w {
+            out[x] = running as f32;
+            running -= values[x - r];
+        }
+    } else {
+        for x in grow_end..w {
+            out[x] = running as f32;
+            if x + r + 1 < w {
+                running += values[x + r + 1];
+            }
+            if x >= r {
+                running -= values[x - r];
             }
         }
     }
@@ -443,7 +486,7 @@ mod tests {
             radius: 3,
             epsilon: 1e-8,
         };
-        let output = guided_filter(&guide, g, &input, bands, w, h, filter).unwrap();
+        let output = guided_filter(&guide, g, None, &input, bands, w, h, filter).unwrap();
         for (a, b) in output.iter().zip(&input) {
             assert!((a - b).abs() < 1e-4, "{a} vs {b}");
         }
@@ -465,7 +508,7 @@ mod tests {
             radius: 2,
             epsilon: 1e-4,
         };
-        let output = guided_filter(&guide, 1, &input, 1, w, h, filter).unwrap();
+        let output = guided_filter(&guide, 1, None, &input, 1, w, h, filter).unwrap();
         let rms = |v: &[f32]| {
             let s: f32 = v
                 .iter()
@@ -491,7 +534,7 @@ mod tests {
             radius: 2,
             epsilon: 1e-4,
         };
-        let output = guided_filter(&guide_with_gap, 1, &input, 1, w, h, filter).unwrap();
+        let output = guided_filter(&guide_with_gap, 1, None, &input, 1, w, h, filter).unwrap();
         assert!(output[11].is_nan());
         assert_eq!(output[55], 100.0);
         for (i, v) in output.iter().enumerate() {
@@ -507,12 +550,12 @@ mod tests {
             radius: 1,
             epsilon: 1e-4,
         };
-        assert!(guided_filter(&[0.0; 4], 1, &[0.0; 3], 1, 2, 2, filter).is_err());
-        assert!(guided_filter(&[0.0; 20], 5, &[0.0; 4], 1, 2, 2, filter).is_err());
+        assert!(guided_filter(&[0.0; 4], 1, None, &[0.0; 3], 1, 2, 2, filter).is_err());
+        assert!(guided_filter(&[0.0; 20], 5, None, &[0.0; 4], 1, 2, 2, filter).is_err());
         let zero = GuidedFilter {
             epsilon: 0.0,
             ..filter
         };
-        assert!(guided_filter(&[0.0; 4], 1, &[0.0; 4], 1, 2, 2, zero).is_err());
+        assert!(guided_filter(&[0.0; 4], 1, None, &[0.0; 4], 1, 2, 2, zero).is_err());
     }
 }

@@ -15,8 +15,10 @@
 //! capture. Out: the refined reflectance; unmeasured pixels stay NaN, and pixels whose own
 //! capture is saturated keep their demultiplexed value.
 
+mod confidence;
 mod guided_filter;
 
+pub use confidence::{confidence_weights, measurement_residuals};
 pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
 
 use crate::register::NormalisedView;
@@ -31,13 +33,18 @@ pub struct GuidedRefinement {
     /// Ridge weight on the guide's window covariance, in squared reflectance units: the
     /// guide variance under which a window is smoothed rather than followed.
     pub epsilon: f64,
+    /// Pixels weigh `1 / (1 + (ρ / σ)²)` in the fits, ρ their measurement residual and σ
+    /// this multiple of the view's median residual ([`confidence_weights`]); None: every
+    /// measured pixel weighs the same.
+    pub confidence_scale: Option<f64>,
 }
 
 impl Default for GuidedRefinement {
     fn default() -> Self {
         GuidedRefinement {
-            radius: 6,
+            radius: 4,
             epsilon: 1e-4,
+            confidence_scale: Some(1.5),
         }
     }
 }
@@ -50,6 +57,7 @@ pub fn refine_view(
     bands: usize,
     view: &NormalisedView,
     white_response: &[f64],
+    weights: Option<&[f32]>,
     settings: GuidedRefinement,
 ) -> Result<()> {
     if white_response.len() != view.channels
@@ -76,6 +84,7 @@ pub fn refine_view(
     *reflectance = guided_filter(
         &guide,
         view.channels,
+        weights,
         reflectance,
         bands,
         view.width,
