@@ -16,7 +16,7 @@ use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{ArrayGeometry, RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
-use anaglyph_core::scene::{Scene, SceneFile, PRESETS};
+use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
 use anaglyph_core::stereo::{MatchingCost, MatchingNetwork};
 use std::time::Instant;
@@ -61,6 +61,14 @@ fn main() -> anyhow::Result<()> {
             }))
         })
         .collect::<anyhow::Result<_>>()?;
+    // ANAGLYPH_METAMERS=AMPLITUDE: texture spectra vary at fixed colour (10 mm features).
+    let metamers = match std::env::var("ANAGLYPH_METAMERS") {
+        Ok(text) => Some(MetamerVariation {
+            amplitude: text.parse()?,
+            scale_mm: 10.0,
+        }),
+        Err(_) => None,
+    };
     let rig = Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into())?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let network = MatchingNetwork::default_fast()?;
@@ -71,6 +79,7 @@ fn main() -> anyhow::Result<()> {
         let settings = SimulationSettings {
             width,
             height,
+            metamers,
             ..SimulationSettings::default()
         };
         let simulation = Simulation::run(&rig, &scene, settings)?;

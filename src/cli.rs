@@ -201,6 +201,20 @@ fn parse_pose_jitter(text: &str) -> Result<(f64, f64), String> {
 }
 
 /// Parses `WIDTHxHEIGHT`.
+fn parse_metamers(text: &str) -> Result<(f64, f64), String> {
+    let mut parts = text.split(',').map(|p| p.trim().parse::<f64>());
+    let amplitude = parts.next();
+    let scale = parts.next().unwrap_or(Ok(10.0));
+    match (amplitude, scale, parts.next()) {
+        (Some(Ok(a)), Ok(s), None) if a >= 0.0 && a.is_finite() && s > 0.0 && s.is_finite() => {
+            Ok((a, s))
+        }
+        _ => Err(format!(
+            "'{text}' (expected AMPLITUDE[,SCALE_MM] with AMPLITUDE >= 0 and SCALE_MM > 0)"
+        )),
+    }
+}
+
 fn parse_size(text: &str) -> Result<(usize, usize), String> {
     let (w, h) = text
         .split_once(['x', 'X'])
@@ -243,6 +257,11 @@ pub struct SimulateArgs {
     /// truth stays rectified; poses go to DIR/calibration/).
     #[arg(long, value_parser = parse_pose_jitter)]
     pub pose_jitter: Option<(f64, f64)>,
+    /// Vary texture and pattern spectra at fixed colour: AMPLITUDE[,SCALE_MM] (1 = the
+    /// full spread of measured spectra of one colour; features of SCALE_MM, default 10).
+    /// Without it every colour gets the mean measured spectrum of that colour.
+    #[arg(long, value_parser = parse_metamers)]
+    pub metamers: Option<(f64, f64)>,
     /// Output folder (created; files in it are replaced).
     #[arg(long)]
     pub out: PathBuf,

@@ -4,7 +4,7 @@ use super::format_seconds;
 use crate::cli::SimulateArgs;
 use crate::progress::spinner;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
-use anaglyph_core::scene::{random_scene, Scene, SceneFile, PRESETS};
+use anaglyph_core::scene::{random_scene, MetamerVariation, Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
 use std::path::Path;
 use std::time::Instant;
@@ -51,6 +51,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     if args.noise_free {
         settings.noise = None;
     }
+    settings.metamers = args.metamers.map(|(amplitude, scale_mm)| MetamerVariation {
+        amplitude,
+        scale_mm,
+    });
     settings.pose_jitter = args
         .pose_jitter
         .map(|(rotation_deg, offset_mm)| PoseJitter {

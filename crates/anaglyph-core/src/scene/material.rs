@@ -53,10 +53,28 @@ pub enum Pattern {
     },
 }
 
+/// Spectral variation at fixed colour: textures and patterns get
+/// `amplitude × Σ_k e_k g_k(u, v)` added to their spectra, with `e_k` the upsampler's
+/// [`SpectralUpsampler::metameric_components`] (the spread of measured spectra of one
+/// colour) and `g_k` independent smooth random fields of unit variance and feature size
+/// `scale_mm`. Amplitude 1 is the full spread of the measured sets; the colour under D65
+/// is unchanged (up to clipping to [0, 1]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct MetamerVariation {
+    pub amplitude: f64,
+    pub scale_mm: f64,
+}
+
+/// Standard deviation of [`value_noise`] (uniform lattice values, smoothstep weights:
+/// `sqrt((∫(1−s)² + s²)² / 12)`).
+const VALUE_NOISE_SD: f64 = 0.2144;
+
 /// Evaluates materials into spectra, with the upsampler they share.
 #[derive(Debug, Clone)]
 pub struct SpectrumSampler {
     pub upsampler: Arc<SpectralUpsampler>,
+    /// Spectral variation at fixed colour and its seed (None: the mean spectrum).
+    pub metamers: Option<(MetamerVariation, u64)>,
 }
 
 fn hash(x: i64, y: i64, seed: u64) -> f64 {
@@ -114,6 +132,32 @@ impl Pattern {
 }
 
 impl SpectrumSampler {
+    /// Adds the metameric variation at surface point (u, v) mm to `spectrum`, clipped to
+    /// [0, 1] (nothing without [`Self::metamers`]).
+    fn vary(&self, u: f64, v: f64, spectrum: &mut [f64]) {
+        let Some((variation, seed)) = self.metamers else {
+            return;
+        };
+        if variation.amplitude == 0.0 {
+            return;
+        }
+        for (k, component) in self.upsampler.metameric_components().iter().enumerate() {
+            let field = (value_noise(
+                u / variation.scale_mm,
+                v / variation.scale_mm,
+                seed ^ (0x5851_F42D_4C95_7F2D_u64.wrapping_mul(k as u64 + 1)),
+            ) - 0.5)
+                / VALUE_NOISE_SD;
+            let weight = variation.amplitude * field;
+            for (s, e) in spectrum.iter_mut().zip(component) {
+                *s += weight * e;
+            }
+        }
+        for s in spectrum.iter_mut() {
+            *s = s.clamp(0.0, 1.0);
+        }
+    }
+
     /// Adds `weight ×` the reflectance of `material` at surface point (u, v) mm to `acc` (on [`super::UPSAMPLING_SHAPE`]); `scratch` holds one spectrum.
     pub fn accumulate(
         &self,
@@ -131,12 +175,14 @@ impl SpectrumSampler {
             Material::Texture { texture, scale_mm } => {
                 let rgb = texture.sample(u / scale_mm, v / scale_mm);
                 self.upsampler.reflectance(rgb, scratch);
+                self.vary(u, v, scratch);
                 add(acc, scratch);
             }
             Material::Pattern { pattern, colours } => {
                 let w = pattern.weight(u, v);
                 let rgb = [0, 1, 2].map(|c| colours[0][c] * (1.0 - w) + colours[1][c] * w);
                 self.upsampler.reflectance(rgb, scratch);
+                self.vary(u, v, scratch);
                 add(acc, scratch);
             }
             Material::Chart {
@@ -156,5 +202,69 @@ impl SpectrumSampler {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sampler(metamers: Option<(MetamerVariation, u64)>) -> SpectrumSampler {
+        SpectrumSampler {
+            upsampler: Arc::new(SpectralUpsampler::new().unwrap()),
+            metamers,
+        }
+    }
+
+    #[test]
+    fn metameric_variation_changes_spectra_but_not_colours() {
+        let plain = sampler(None);
+        let varied = sampler(Some((
+            MetamerVariation {
+                amplitude: 0.5,
+                scale_mm: 10.0,
+            },
+            3,
+        )));
+        let material = Material::Pattern {
+            pattern: Pattern::Flat,
+            colours: [[0.35, 0.3, 0.25], [0.0; 3]],
+        };
+        let n = super::super::UPSAMPLING_SHAPE.count;
+        let mut scratch = vec![0.0; n];
+        let mut base = vec![0.0; n];
+        plain.accumulate(&material, 0.0, 0.0, 1.0, &mut base, &mut scratch);
+        let base_rgb = plain.upsampler.linear_rgb(&base);
+        let mut spread = Vec::new();
+        for k in 0..64 {
+            let (u, v) = (7.3 * k as f64, 3.1 * k as f64);
+            let mut s = vec![0.0; n];
+            varied.accumulate(&material, u, v, 1.0, &mut s, &mut scratch);
+            let rgb = varied.upsampler.linear_rgb(&s);
+            // A muted colour: nothing clips, so the colour is exact.
+            assert!(s.iter().all(|v| (0.0..=1.0).contains(v)));
+            for c in 0..3 {
+                assert!(
+                    (rgb[c] - base_rgb[c]).abs() < 1e-9,
+                    "{rgb:?} vs {base_rgb:?}"
+                );
+            }
+            let rms = (s
+                .iter()
+                .zip(&base)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                / n as f64)
+                .sqrt();
+            spread.push(rms);
+        }
+        let mean = spread.iter().sum::<f64>() / spread.len() as f64;
+        // Amplitude 0.5 of the measured spread: a few percent of reflectance per knot.
+        assert!(mean > 0.01 && mean < 0.1, "{mean}");
+        // The same point gets the same spectrum (the field is a function of position).
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+        varied.accumulate(&material, 5.0, 6.0, 1.0, &mut a, &mut scratch);
+        varied.accumulate(&material, 5.0, 6.0, 1.0, &mut b, &mut scratch);
+        assert_eq!(a, b);
     }
 }

@@ -15,6 +15,6 @@ pub use description::{
     random_scene, MaterialSpec, ObjectSpec, Scene, SceneFile, SceneObject, ShapeSpec, PRESETS,
 };
 pub use geometry::{rotate, rotation, Hit, PinholeCamera, Ray, Shape, Vec3};
-pub use material::{Material, SpectrumSampler};
+pub use material::{Material, MetamerVariation, SpectrumSampler};
 pub use spectral_upsampling::{srgb_to_linear, SpectralUpsampler, UPSAMPLING_SHAPE};
 pub use texture::{builtin_texture, Texture, TEXTURE_NAMES};

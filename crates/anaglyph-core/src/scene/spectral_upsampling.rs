@@ -11,6 +11,15 @@
 //! the Mallett & Yuksel (2019) spectrum of the same colour, which lies in [0, 1] by
 //! construction, just enough to enter the box; both have the same colour, so the blend
 //! does too (to the Mallett basis's own accuracy, about 1e-3).
+//!
+//! The Wiener spectrum is the *mean* of the measured spectra of that colour: alone it makes
+//! every texture's spectra an affine function of its colour (three degrees of freedom),
+//! which flatters any method that predicts spectra from colour. [`metameric_components`]
+//! gives the spread around that mean: the leading principal components of the conditional
+//! covariance `Σ − Σ Lᵀ (L Σ Lᵀ)⁻¹ L Σ`, scaled by their standard deviations. They are
+//! metameric blacks (invisible to L), so adding them changes the spectrum, not the colour.
+//!
+//! [`metameric_components`]: SpectralUpsampler::metameric_components
 
 use crate::builtin;
 use crate::spectrum::{Interpolation, SpectralShape};
@@ -23,6 +32,10 @@ pub const UPSAMPLING_SHAPE: SpectralShape = SpectralShape {
     step: 5.0,
     count: 81,
 };
+
+/// Principal components kept of the spread of measured spectra at a fixed colour (they
+/// hold nearly all of its variance: see the test).
+pub const METAMERIC_COMPONENTS: usize = 6;
 
 /// Measured reflectance sets the basis is learnt from.
 const TRAINING_SETS: [&str; 3] = [
@@ -57,6 +70,11 @@ pub struct SpectralUpsampler {
     /// Linear sRGB of a spectrum: `rgb[c] = Σ_λ to_rgb[c][λ] s(λ)`.
     to_rgb: [Vec<f64>; 3],
     mean_rgb: [f64; 3],
+    /// Leading principal components of the conditional covariance, each scaled by its
+    /// standard deviation, largest first.
+    metameric: Vec<Vec<f64>>,
+    /// Fraction of the conditional variance the kept components hold.
+    metameric_variance_kept: f64,
 }
 
 impl SpectralUpsampler {
@@ -133,13 +151,53 @@ impl SpectralUpsampler {
                 .map(|i| (0..3).map(|k| sigma_lt[k][i] * inv[(k, c)]).sum())
                 .collect::<Vec<f64>>()
         });
+        // Σ_c = Σ − gain (L Σ): what the colour does not tell about the spectrum.
+        let conditional = faer::Mat::from_fn(n, n, |i, j| {
+            covariance[i * n + j] - (0..3).map(|c| gain[c][i] * sigma_lt[c][j]).sum::<f64>()
+        });
+        let symmetric = faer::Mat::from_fn(n, n, |i, j| {
+            0.5 * (conditional[(i, j)] + conditional[(j, i)])
+        });
+        let eigen = symmetric
+            .self_adjoint_eigen(faer::Side::Lower)
+            .map_err(|e| Error::LinearAlgebra {
+                op: "spectral upsampling: metameric spread".into(),
+                message: format!("{e:?}"),
+            })?;
+        let values = eigen.S().column_vector();
+        let total: f64 = (0..n).map(|k| values[k].max(0.0)).sum();
+        // Eigenvalues come in nondecreasing order: the largest are last.
+        let metameric: Vec<Vec<f64>> = (0..METAMERIC_COMPONENTS.min(n))
+            .map(|k| {
+                let index = n - 1 - k;
+                let sd = values[index].max(0.0).sqrt();
+                (0..n).map(|i| sd * eigen.U()[(i, index)]).collect()
+            })
+            .collect();
+        let kept: f64 = (0..METAMERIC_COMPONENTS.min(n))
+            .map(|k| values[n - 1 - k].max(0.0))
+            .sum();
         Ok(SpectralUpsampler {
             mean,
             gain,
             mallett,
             to_rgb,
             mean_rgb,
+            metameric,
+            metameric_variance_kept: if total > 0.0 { kept / total } else { 1.0 },
         })
+    }
+
+    /// The spread of measured spectra around the Wiener spectrum of their colour: the
+    /// leading principal components of the conditional covariance, each scaled by its
+    /// standard deviation (on [`UPSAMPLING_SHAPE`]), largest first.
+    pub fn metameric_components(&self) -> &[Vec<f64>] {
+        &self.metameric
+    }
+
+    /// Fraction of the conditional variance held by [`Self::metameric_components`].
+    pub fn metameric_variance_kept(&self) -> f64 {
+        self.metameric_variance_kept
     }
 
     /// Linear sRGB (D65) of a spectrum on [`UPSAMPLING_SHAPE`].
@@ -218,6 +276,29 @@ mod tests {
         assert!(worst_natural < 1e-9, "natural colours: {worst_natural}");
         // Saturated colours blend in the Mallett basis (measured worst: 1.2e-4).
         assert!(worst_any < 1e-3, "any colour: {worst_any}");
+    }
+
+    #[test]
+    fn metameric_components_leave_the_colour_alone_and_hold_the_spread() {
+        let up = SpectralUpsampler::new().unwrap();
+        let components = up.metameric_components();
+        assert_eq!(components.len(), METAMERIC_COMPONENTS);
+        assert!(
+            up.metameric_variance_kept() > 0.9,
+            "{}",
+            up.metameric_variance_kept()
+        );
+        let norms: Vec<f64> = components
+            .iter()
+            .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
+            .collect();
+        // Largest first, and a real spread (a few percent of reflectance per knot).
+        assert!(norms.windows(2).all(|w| w[0] >= w[1]), "{norms:?}");
+        assert!(norms[0] > 0.05, "{norms:?}");
+        for c in components {
+            let rgb = up.linear_rgb(c);
+            assert!(rgb.iter().all(|v| v.abs() < 1e-9), "{rgb:?}");
+        }
     }
 
     #[test]

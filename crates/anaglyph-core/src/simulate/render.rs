@@ -3,8 +3,8 @@
 use crate::capture::CameraNoise;
 use crate::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
 use crate::scene::{
-    rotate, rotation, PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler, Vec3,
-    UPSAMPLING_SHAPE,
+    rotate, rotation, MetamerVariation, PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler,
+    Vec3, UPSAMPLING_SHAPE,
 };
 use crate::{Error, Result};
 use rand::{Rng, SeedableRng};
@@ -33,6 +33,9 @@ pub struct SimulationSettings {
     pub white_reflectance: f64,
     /// Small random camera rotations and offsets (None: a perfectly rectified array).
     pub pose_jitter: Option<PoseJitter>,
+    /// Spectral variation at fixed colour in textures and patterns (None: every colour
+    /// gets the mean measured spectrum of that colour).
+    pub metamers: Option<MetamerVariation>,
 }
 
 /// Bounds of the random pose error of each camera (uniform in ±bound, seeded). Captures
@@ -56,6 +59,7 @@ impl Default for SimulationSettings {
             exposure_jitter: 0.25,
             white_reflectance: 0.95,
             pose_jitter: None,
+            metamers: None,
         }
     }
 }
@@ -384,8 +388,20 @@ impl Simulation {
         )?;
         let render_c = SensingMatrix::from_responses(&responses, knots, OutOfBand::Extend)?;
         let render_c = embed_in_upsampling_grid(render_c)?;
+        if let Some(m) = settings.metamers {
+            if !(m.amplitude >= 0.0 && m.amplitude.is_finite() && m.scale_mm > 0.0) {
+                return Err(Error::invalid(
+                    "simulation",
+                    format!(
+                        "metameric variation amplitude {} and scale {} mm (expected >= 0 and > 0)",
+                        m.amplitude, m.scale_mm
+                    ),
+                ));
+            }
+        }
         let sampler = SpectrumSampler {
             upsampler: Arc::new(SpectralUpsampler::new()?),
+            metamers: settings.metamers.map(|m| (m, settings.seed)),
         };
         let views = (0..rig.cameras.len())
             .map(|m| render_view(rig, scene, m, &settings, &sampler, &render_c))
