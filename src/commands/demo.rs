@@ -398,7 +398,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         "\n7. Light fields: the {} preset scenes through this rig at {width}×{height}, every view reconstructed",
         anaglyph_core::scene::PRESETS.len()
     );
-    println!("   from the captures (learned multi-view registration) and with the true disparities (the ceiling)");
+    println!("   from the captures (learned multi-view registration) and with the true disparities (the ceiling),");
+    println!("   each refined by a guided filter on the view's own capture");
     std::fs::create_dir_all(&args.out)?;
     let (presets, simulation) = run_presets(&args.out, &filters, args.size, args.seed)?;
     println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   time");
