@@ -309,6 +309,13 @@ impl BandScratch {
                 };
             }
         }
+        // No window around the pixel has a fit (every neighbour weighs next to nothing):
+        // the pixel keeps its own value.
+        for i in 0..n {
+            if !(stats.windows[i] > 0.5) {
+                output[i] = input[i];
+            }
+        }
         output
     }
 }
@@ -542,6 +549,34 @@ mod tests {
                 assert!((v - 0.3).abs() < 1e-5, "pixel {i}: {v}");
             }
         }
+    }
+
+    #[test]
+    fn pixels_without_any_trusted_neighbour_keep_their_value() {
+        // A block weighing (almost) nothing: its windows have no fit, so it is left alone
+        // instead of being set to zero; the rest is filtered as usual.
+        let (w, h) = (12, 12);
+        let guide: Vec<f32> = (0..w * h).map(|i| 0.1 + 0.05 * (i % 7) as f32).collect();
+        let input: Vec<f32> = (0..w * h).map(|i| 0.4 + 0.01 * (i % 5) as f32).collect();
+        let weights: Vec<f32> = (0..w * h)
+            .map(|i| if i % w < 6 { 1e-6 } else { 1.0 })
+            .collect();
+        let filter = GuidedFilter {
+            radius: 1,
+            epsilon: 1e-4,
+        };
+        let output = guided_filter(&guide, 1, Some(&weights), &input, 1, w, h, filter).unwrap();
+        for y in 0..h {
+            for x in 0..4 {
+                assert_eq!(output[y * w + x], input[y * w + x], "({x}, {y})");
+            }
+            for x in 4..w {
+                let v = output[y * w + x];
+                assert!(v > 0.3 && v < 0.55, "({x}, {y}): {v}");
+            }
+        }
+        let negative = vec![-1.0f32; w * h];
+        assert!(guided_filter(&guide, 1, Some(&negative), &input, 1, w, h, filter).is_err());
     }
 
     #[test]
