@@ -13,7 +13,7 @@
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
-use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
 use anaglyph_core::register::{ArrayGeometry, RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, PRESETS};
@@ -42,23 +42,38 @@ fn main() -> anyhow::Result<()> {
         Ok(list) => list.split(',').map(str::to_string).collect(),
         Err(_) => vec!["truth".into(), "pairwise".into(), "multi-baseline".into()],
     };
-    let refinements: Vec<Option<GuidedRefinement>> = std::env::var("ANAGLYPH_REFINEMENTS")
+    type Refinement = (Option<GuidedRefinement>, Option<ScenePriorSettings>);
+    let refinements: Vec<Refinement> = std::env::var("ANAGLYPH_REFINEMENTS")
         .unwrap_or_else(|_| "none,4:1e-4:1.5".into())
         .split(',')
         .map(|item| -> anyhow::Result<_> {
+            let (item, prior) = match item.split_once('+') {
+                Some((item, scale)) => (
+                    item,
+                    Some(ScenePriorSettings {
+                        noise_scale: scale.parse()?,
+                    }),
+                ),
+                None => (item, None),
+            };
             if item == "none" {
-                return Ok(None);
+                return Ok((None, prior));
             }
             let fields: Vec<&str> = item.split(':').collect();
             let [radius, epsilon, confidence] = fields[..] else {
-                anyhow::bail!("refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE");
+                anyhow::bail!(
+                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE for the scene prior"
+                );
             };
             let confidence: f64 = confidence.parse()?;
-            Ok(Some(GuidedRefinement {
-                radius: radius.parse()?,
-                epsilon: epsilon.parse()?,
-                confidence_scale: (confidence > 0.0).then_some(confidence),
-            }))
+            Ok((
+                Some(GuidedRefinement {
+                    radius: radius.parse()?,
+                    epsilon: epsilon.parse()?,
+                    confidence_scale: (confidence > 0.0).then_some(confidence),
+                }),
+                prior,
+            ))
         })
         .collect::<anyhow::Result<_>>()?;
     // ANAGLYPH_METAMERS=AMPLITUDE: texture spectra vary at fixed colour (10 mm features).
@@ -136,7 +151,8 @@ fn main() -> anyhow::Result<()> {
                 views: None,
                 given_disparities: given,
                 automatic_search_range: false,
-                refinement: refinements[0],
+                refinement: refinements[0].0,
+                scene_prior: refinements[0].1,
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
@@ -148,12 +164,12 @@ fn main() -> anyhow::Result<()> {
                 let (field, seconds) = if k == 0 {
                     (field.clone(), seconds)
                 } else {
-                    pipeline.refinement = refinement;
+                    (pipeline.refinement, pipeline.scene_prior) = refinement;
                     let start = Instant::now();
                     let refined = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
                     (refined, start.elapsed().as_secs_f64())
                 };
-                let label = match refinement {
+                let mut label = match refinement.0 {
                     None => "none".to_string(),
                     Some(r) => format!(
                         "guided r={} ε={:e} confidence {}",
@@ -162,6 +178,9 @@ fn main() -> anyhow::Result<()> {
                         r.confidence_scale.unwrap_or(0.0)
                     ),
                 };
+                if let Some(prior) = refinement.1 {
+                    label += &format!(", scene prior ×{}", prior.noise_scale);
+                }
                 let nb = field.bands.len();
                 let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
                 let mut reference = None;

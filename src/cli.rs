@@ -3,7 +3,7 @@
 
 use anaglyph_core::demux::Solver;
 use anaglyph_core::filters::SelectionCriterion;
-use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
 use anaglyph_core::rig::OutOfBand;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -636,6 +636,15 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = GuidedRefinement::default().confidence_scale.unwrap_or(0.0),
           value_parser = parse_non_negative)]
     pub refine_confidence: f64,
+    /// Leave the pixels some cameras do not see to Eq. 6's smoothness alone instead of
+    /// estimating them from the spectra of the pixels every camera sees.
+    #[arg(long)]
+    pub no_scene_prior: bool,
+    /// Scene prior: multiplies the measurement noise it assumes (learned from the
+    /// residuals); larger leans more on the scene's mean spectrum.
+    #[arg(long, default_value_t = ScenePriorSettings::default().noise_scale,
+          value_parser = parse_positive)]
+    pub scene_prior_noise: f64,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

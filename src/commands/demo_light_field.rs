@@ -147,6 +147,7 @@ pub fn run_presets(
             given_disparities: None,
             automatic_search_range: false,
             refinement: Some(Default::default()),
+            scene_prior: Some(Default::default()),
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

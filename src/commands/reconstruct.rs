@@ -10,7 +10,7 @@ use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
 };
-use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
 use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{resolve_curve, Rig};
 use anyhow::Context;
@@ -120,6 +120,9 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             epsilon: args.refine_epsilon,
             confidence_scale: (args.refine_confidence > 0.0).then_some(args.refine_confidence),
         }),
+        scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
+            noise_scale: args.scene_prior_noise,
+        }),
     };
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
@@ -154,6 +157,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "solver": format!("{:?}", settings.demux.solver),
         "lambda": rig.file.reconstruction.lambda,
         "refinement": settings.refinement,
+        "scene_prior": settings.scene_prior,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
     });

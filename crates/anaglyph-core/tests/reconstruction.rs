@@ -9,7 +9,7 @@
 use anaglyph_core::builtin;
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
-use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
 use anaglyph_core::register::{ArrayGeometry, RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile};
@@ -57,6 +57,7 @@ fn settings<'a>(
         given_disparities: given,
         automatic_search_range: false,
         refinement: None,
+        scene_prior: None,
     }
 }
 
@@ -226,6 +227,67 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
         );
     }
     assert!(scores[2].0 > 31.8 && scores[5].0 > 30.4, "{scores:?}");
+}
+
+#[test]
+fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
+    let (rig, simulation) = tabletop();
+    let captures = ArrayCaptures::from_simulation(&simulation);
+    let (w, h) = (simulation.settings.width, simulation.settings.height);
+    let truth: Vec<Vec<f32>> = simulation
+        .views
+        .iter()
+        .map(|v| v.disparity.clone())
+        .collect();
+    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
+    let geometry = ArrayGeometry::of_rig(&rig);
+    let mut scores = Vec::new();
+    for prior in [None, Some(ScenePriorSettings::default())] {
+        let mut pipeline = settings(
+            RegistrationMode::Pairwise,
+            MatchingCost::Census,
+            Some(truth.clone()),
+        );
+        pipeline.refinement = Some(GuidedRefinement::default());
+        pipeline.scene_prior = prior;
+        let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
+        assert_eq!(field.scene_prior, prior);
+        let nb = field.bands.len();
+        let mut missed = Vec::new();
+        for (i, view) in field.views.iter().enumerate() {
+            assert_eq!(view.scene_prior.is_some(), prior.is_some());
+            if let Some(report) = view.scene_prior {
+                assert!(
+                    report.samples > 1000 && report.filled_pixels > 0,
+                    "{report:?}"
+                );
+            }
+            let seen = seen_by_all_views(&truth, &positions, i, &geometry, w, h);
+            let some_miss: Vec<bool> = seen.iter().map(|s| !s).collect();
+            let truth = &simulation.views[i].truth;
+            let all = score_cube(truth, &view.reflectance, w, h, nb, None).unwrap();
+            let part = score_cube(truth, &view.reflectance, w, h, nb, Some(&some_miss)).unwrap();
+            missed.push((all.psnr, part.psnr));
+        }
+        scores.push(missed);
+    }
+    eprintln!("{scores:?}");
+    // Measured, mean over views without -> with the prior: the pixels some camera misses
+    // 36.61 -> 37.02 dB, every view gaining 0.07-1.1 dB; whole views 35.98 -> 36.13 dB.
+    let mean =
+        |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;
+    let (before, after) = (&scores[0], &scores[1]);
+    assert!(
+        mean(after, |s| s.1) > mean(before, |s| s.1) + 0.3,
+        "{scores:?}"
+    );
+    assert!(
+        mean(after, |s| s.0) > mean(before, |s| s.0) + 0.1,
+        "{scores:?}"
+    );
+    for (b, a) in before.iter().zip(after) {
+        assert!(a.1 > b.1 + 0.03, "{scores:?}");
+    }
 }
 
 #[test]

@@ -174,6 +174,7 @@ fn true_disparities_hold_again_after_rectification() {
         given_disparities: Some(truth),
         automatic_search_range: false,
         refinement: None,
+        scene_prior: None,
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -240,6 +241,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         given_disparities: None,
         automatic_search_range: false,
         refinement: None,
+        scene_prior: None,
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

@@ -7,6 +7,7 @@
 //!   -> register (the search range from a coarse pass when automatic; a disparity map per
 //!      view) -> warp every capture to each requested view
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
+//!   -> scene prior (pixels some camera misses, from the spectra of those all cameras see)
 //!   -> refine (guided by the view's own capture, when enabled)
 //! ```
 //!
@@ -30,7 +31,10 @@ pub use probe_plot::{plot_probe, plot_series, Probe};
 
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
-use crate::refine::{confidence_weights, measurement_residuals, refine_view, GuidedRefinement};
+use crate::refine::{
+    confidence_weights, measurement_residuals, refine_view, GuidedRefinement, ScenePrior,
+    ScenePriorReport, ScenePriorSettings,
+};
 use crate::register::{
     estimate_search_range, gather_measurements, register_views, ArrayGeometry, GridImage,
     RegistrationSettings, SearchRange, Visibility,
@@ -74,6 +78,9 @@ pub struct PipelineSettings<'a> {
     /// Filter each view's cube guided by its own capture ([`crate::refine`]); None: the
     /// demultiplexed cube as it is (the paper).
     pub refinement: Option<GuidedRefinement>,
+    /// Estimate under-measured pixels from the spectra of the view's complete pixels
+    /// ([`crate::refine::ScenePrior`]); None: Eq. 6's smoothness alone decides them.
+    pub scene_prior: Option<ScenePriorSettings>,
 }
 
 /// One reconstructed view.
@@ -90,6 +97,9 @@ pub struct ReconstructedView {
     /// Median rms residual `‖P − Cŝ‖` of the view's pixels in reflectance units, before
     /// refinement (None: not computed). It needs no truth: misregistration raises it.
     pub median_residual: Option<f64>,
+    /// What the scene prior did to the view (None: not applied, or too few complete
+    /// pixels to learn it).
+    pub scene_prior: Option<ScenePriorReport>,
 }
 
 /// The multispectral light field of an array.
@@ -107,6 +117,8 @@ pub struct LightField {
     pub search_range: Option<SearchRange>,
     /// The refinement applied to every view (None: none).
     pub refinement: Option<GuidedRefinement>,
+    /// The scene prior's settings (None: not used).
+    pub scene_prior: Option<ScenePriorSettings>,
     pub condition_number: f64,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
@@ -282,15 +294,16 @@ pub fn reconstruct(
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();
-        // With confidence weights, the solve keeps every knot of C (the residual needs
-        // them) and the reported bands are cut out afterwards.
+        // The residuals (for confidence weights) and the scene prior need every knot of
+        // C; the reported bands are cut out afterwards.
         let confidence = settings.refinement.and_then(|r| r.confidence_scale);
-        let solved = if confidence.is_some() {
+        let full_knots = confidence.is_some() || settings.scene_prior.is_some();
+        let solved = if full_knots {
             0..sensing.cols()
         } else {
             output.clone()
         };
-        let (spectra, demux) = demultiplex_as::<f32, f32>(
+        let (mut spectra, demux) = demultiplex_as::<f32, f32>(
             sensing.values(),
             sensing.rows(),
             &measurements,
@@ -300,25 +313,52 @@ pub fn reconstruct(
         )?;
         demux_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Demultiplexing, k + 1, requested.len());
-        let (mut reflectance, weights, median_residual) = match confidence {
-            None => (spectra, None, None),
-            Some(scale) => {
-                let start = Instant::now();
-                let residuals = measurement_residuals(
-                    sensing.values(),
+        let (mut reflectance, weights, median_residual, prior_report) = if full_knots {
+            let start = Instant::now();
+            let mut residuals =
+                measurement_residuals(sensing.values(), sensing.rows(), &measurements, &spectra)?;
+            let mut prior_report = None;
+            if let Some(prior_settings) = settings.scene_prior {
+                let prior = ScenePrior::learn(
                     sensing.rows(),
+                    sensing.cols(),
                     &measurements,
                     &spectra,
+                    &residuals,
                 )?;
-                let (weights, median) = confidence_weights(&residuals, scale)?;
-                let knots = solved.len();
-                let reflectance: Vec<f32> = spectra
-                    .chunks_exact(knots)
-                    .flat_map(|s| s[output.clone()].iter().copied())
-                    .collect();
-                refine_seconds += start.elapsed().as_secs_f64();
-                (reflectance, Some(weights), Some(median))
+                if let Some(prior) = prior {
+                    let report = prior.fill_incomplete(
+                        sensing.values(),
+                        sensing.rows(),
+                        &measurements,
+                        &mut spectra,
+                        prior_settings.noise_scale,
+                    )?;
+                    residuals = measurement_residuals(
+                        sensing.values(),
+                        sensing.rows(),
+                        &measurements,
+                        &spectra,
+                    )?;
+                    prior_report = Some(report);
+                }
             }
+            let (weights, median) = match confidence {
+                Some(scale) => {
+                    let (weights, median) = confidence_weights(&residuals, scale)?;
+                    (Some(weights), Some(median))
+                }
+                None => (None, None),
+            };
+            let knots = solved.len();
+            let reflectance: Vec<f32> = spectra
+                .chunks_exact(knots)
+                .flat_map(|s| s[output.clone()].iter().copied())
+                .collect();
+            refine_seconds += start.elapsed().as_secs_f64();
+            (reflectance, weights, median, prior_report)
+        } else {
+            (spectra, None, None, None)
         };
         if let Some(refinement) = settings.refinement {
             let start = Instant::now();
@@ -353,6 +393,7 @@ pub fn reconstruct(
             visibility,
             demux,
             median_residual,
+            scene_prior: prior_report,
         });
     }
     timings.push(("warping".to_string(), warp_seconds));
@@ -369,6 +410,7 @@ pub fn reconstruct(
         rectification,
         search_range,
         refinement: settings.refinement,
+        scene_prior: settings.scene_prior,
         condition_number,
         timings,
         warnings,
@@ -484,6 +526,7 @@ pub struct ViewSummary {
     pub disparity_range: [f32; 2],
     pub unmeasured_pixels: usize,
     pub median_residual: Option<f64>,
+    pub scene_prior: Option<ScenePriorReport>,
 }
 
 impl ReconstructedView {
@@ -500,6 +543,7 @@ impl ReconstructedView {
             disparity_range: range,
             unmeasured_pixels: self.demux.unmeasured_pixels,
             median_residual: self.median_residual,
+            scene_prior: self.scene_prior,
         }
     }
 }

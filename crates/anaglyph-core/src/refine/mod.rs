@@ -1,6 +1,7 @@
 //! Guided spectral refinement, the stage after demultiplexing (beyond the paper): each
 //! view's reflectance cube is filtered with that view's own capture as the guide
-//! ([`guided_filter`]).
+//! ([`guided_filter`]). Before it, [`ScenePrior`] re-estimates the pixels that some
+//! cameras do not see from the statistics of those that every camera sees.
 //!
 //! Why: a view's own capture is the one measurement that needs no warping. The other
 //! cameras' measurements reach it through interpolation at fractional disparities and
@@ -19,9 +20,11 @@
 
 mod confidence;
 mod guided_filter;
+mod scene_prior;
 
 pub use confidence::{confidence_weights, measurement_residuals};
 pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
+pub use scene_prior::{ScenePrior, ScenePriorReport, ScenePriorSettings};
 
 use crate::register::NormalisedView;
 use crate::{Error, Result};
