@@ -399,7 +399,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         anaglyph_core::scene::PRESETS.len()
     );
     println!("   from the captures (learned multi-view registration) and with the true disparities (the ceiling),");
-    println!("   each refined by a guided filter on the view's own capture");
+    println!(
+        "   pixels some camera misses estimated under the scene's own spectral prior, each view refined"
+    );
+    println!("   by a guided filter on its own capture");
     std::fs::create_dir_all(&args.out)?;
     let (presets, simulation) = run_presets(&args.out, &filters, args.size, args.seed)?;
     println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   time");

@@ -52,7 +52,7 @@ pub fn write_report(dir: &Path, r: &ReportInputs<'_>) -> anyhow::Result<()> {
         r.filters.join(", "), r.condition_number, r.bands_nm.len(),
         r.bands_nm.first().copied().unwrap_or(0.0), r.bands_nm.last().copied().unwrap_or(0.0), r.seconds)?;
 
-    writeln!(h, "<h2>Reconstruction quality (Table 1)</h2><p>Reflectance PSNR (dB, peak 1) and SSIM, band averages. <em>Estimated</em>: disparities from the learned cross-spectral matcher; <em>true</em>: the same pipeline fed the simulator's disparities (the registration ceiling). Both are refined by a guided filter on each view's own capture, weighted by measurement consistency. Paper, on its scenes: 26.7–30.9 dB, 0.82–0.91.</p>")?;
+    writeln!(h, "<h2>Reconstruction quality (Table 1)</h2><p>Reflectance PSNR (dB, peak 1) and SSIM, band averages. <em>Estimated</em>: disparities from the learned cross-spectral matcher; <em>true</em>: the same pipeline fed the simulator's disparities (the registration ceiling). In both, pixels that some camera misses take the linear estimate under the mean and covariance of the spectra every camera sees, and each view is refined by a guided filter on its own capture, weighted by measurement consistency. Paper, on its scenes: 26.7–30.9 dB, 0.82–0.91.</p>")?;
     writeln!(h, "<table><tr><th>scene</th><th>r0c0 PSNR est.</th><th>r0c0 SSIM est.</th><th>r0c0 PSNR true</th><th>r0c0 SSIM true</th><th>seen-by-all PSNR est. / true</th><th>8 views PSNR est. / true</th><th>r0c0 bad-2 %</th><th>seconds (8 views)</th></tr>")?;
     for p in r.presets {
         let (e, t) = (&p.estimated, &p.true_disparity);

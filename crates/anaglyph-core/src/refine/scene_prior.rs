@@ -12,7 +12,10 @@
 //!
 //! R the measurement noise, estimated from the residuals of the complete pixels. The
 //! prior comes from the reconstruction, not from a spectral library, so the simulator's
-//! reflectance sets stay out of the reconstruction (no inverse crime).
+//! reflectance sets stay out of the reconstruction (no inverse crime). A pixel whose
+//! measurements the prior finds implausible (the innovation `P_a − C_a μ` far out in its
+//! χ² distribution: a wrong match, or a material the complete pixels lack) keeps its
+//! Eq. 6 spectrum, since the linear estimate would extrapolate wildly there.
 //!
 //! In: C (rows × knots), a view's measurements (`pixels × rows`, NaN where not seen), its
 //! spectra on all knots and their residuals ([`super::measurement_residuals`]). Out: the
@@ -58,6 +61,9 @@ pub struct ScenePriorReport {
     pub samples: usize,
     /// Pixels whose spectra were replaced by the prior's estimate.
     pub filled_pixels: usize,
+    /// Under-measured pixels left as they were because the prior found their
+    /// measurements implausible.
+    pub rejected_pixels: usize,
     /// The measurement noise assumed, in reflectance units (rms per measurement).
     pub noise: f64,
 }
@@ -233,12 +239,12 @@ impl ScenePrior {
             .filter(|&&k| k != 0)
             .map(|&k| self.gain(c, &white, noise, k).map(|g| (k, g)))
             .collect::<Result<_>>()?;
-        let filled = spectra
+        let (filled, rejected) = spectra
             .par_chunks_mut(PIXELS_PER_TASK * knots)
             .zip(measurements.par_chunks(PIXELS_PER_TASK * rows))
             .zip(keys.par_chunks(PIXELS_PER_TASK))
             .map(|((s, p), keys)| {
-                let mut filled = 0;
+                let (mut filled, mut rejected) = (0, 0);
                 for ((s, p), key) in s
                     .chunks_exact_mut(knots)
                     .zip(p.chunks_exact(rows))
@@ -269,6 +275,7 @@ impl ScenePrior {
                         })
                         .sum();
                     if distance > gain.gate {
+                        rejected += 1;
                         continue;
                     }
                     for (k, out) in s.iter_mut().enumerate() {
@@ -278,12 +285,13 @@ impl ScenePrior {
                     }
                     filled += 1;
                 }
-                filled
+                (filled, rejected)
             })
-            .sum();
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         Ok(ScenePriorReport {
             samples: self.samples,
             filled_pixels: filled,
+            rejected_pixels: rejected,
             noise,
         })
     }
@@ -445,7 +453,7 @@ mod tests {
         let report = prior
             .fill_incomplete(&c, 6, &measurements, &mut spectra, 1.0)
             .unwrap();
-        assert_eq!(report.filled_pixels, 1000);
+        assert_eq!((report.filled_pixels, report.rejected_pixels), (1000, 0));
         assert_eq!(report.noise, 1e-3);
         let mut worst = 0.0f32;
         for (px, (s, t)) in spectra
@@ -485,7 +493,7 @@ mod tests {
         let report = prior
             .fill_incomplete(&c, 6, &measurements, &mut spectra, 1.0)
             .unwrap();
-        assert_eq!(report.filled_pixels, 999);
+        assert_eq!((report.filled_pixels, report.rejected_pixels), (999, 1));
         assert_eq!(&spectra[..6], &before[..]);
     }
 
