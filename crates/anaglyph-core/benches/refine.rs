@@ -1,9 +1,13 @@
 //! Throughput of the guided spectral refinement (pixels/s): a 24-band cube filtered with a
 //! three-channel guide at the default radius, at VGA and full-HD sizes. The content is a
-//! seeded pseudo-random texture; the filter's cost does not depend on it.
+//! seeded pseudo-random texture; the filter's cost does not depend on it. Also the scene
+//! prior (learning it and filling a view's under-measured pixels) at the paper rig's
+//! shape: 24 measurement rows, 52 knots, a quarter of the pixels missing 3 to 18 rows.
 
-use anaglyph_core::refine::{guided_filter, GuidedFilter, GuidedRefinement};
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use anaglyph_core::refine::{
+    guided_filter, GuidedFilter, GuidedRefinement, ScenePrior, ScenePriorSettings,
+};
+use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 
 fn texture(len: usize, seed: u64) -> Vec<f32> {
     let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -43,5 +47,71 @@ fn bench_refine(criterion: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_refine);
+fn bench_scene_prior(criterion: &mut Criterion) {
+    let mut group = criterion.benchmark_group("scene_prior");
+    group.sample_size(10);
+    let (rows, knots) = (24usize, 52usize);
+    let c = texture(rows * knots, 3);
+    let c: Vec<f64> = c.iter().map(|&v| v as f64).collect();
+    let noise_scale = ScenePriorSettings::default().noise_scale;
+    for (w, h) in [(640usize, 480usize), (1920, 1080)] {
+        let pixels = w * h;
+        // Spectra from three texture planes (a low-rank scene), measured through C.
+        let planes = texture(pixels * 3, 4);
+        let mut spectra = vec![0.0f32; pixels * knots];
+        let mut measurements = vec![0.0f32; pixels * rows];
+        for px in 0..pixels {
+            let z = &planes[px * 3..px * 3 + 3];
+            let s = &mut spectra[px * knots..(px + 1) * knots];
+            for (k, v) in s.iter_mut().enumerate() {
+                let t = k as f32 / knots as f32;
+                *v = 0.3 * z[0] + 0.3 * z[1] * t + 0.3 * z[2] * (1.0 - t) * t;
+            }
+            // The leftmost quarter misses the last 3, 6, ... 18 rows in six column strips.
+            let x = px % w;
+            let missing = if x < w / 4 {
+                3 * (1 + 6 * x / (w / 4))
+            } else {
+                0
+            };
+            for r in 0..rows {
+                measurements[px * rows + r] = if r >= rows - missing {
+                    f32::NAN
+                } else {
+                    c[r * knots..(r + 1) * knots]
+                        .iter()
+                        .zip(s.iter())
+                        .map(|(a, &b)| (a * b as f64) as f32)
+                        .sum()
+                };
+            }
+        }
+        let residuals = texture(pixels, 5);
+        // The timed work must fill pixels, not reject them all at the gate.
+        let report = ScenePrior::learn(rows, knots, &measurements, &spectra, &residuals)
+            .expect("learn")
+            .expect("enough samples")
+            .fill_incomplete(&c, rows, &measurements, &mut spectra.clone(), noise_scale)
+            .expect("fill");
+        assert!(report.filled_pixels > pixels / 8, "{report:?}");
+        group.throughput(Throughput::Elements(pixels as u64));
+        group.bench_function(BenchmarkId::from_parameter(format!("{w}x{h}")), |b| {
+            b.iter_batched(
+                || spectra.clone(),
+                |mut spectra| {
+                    let prior = ScenePrior::learn(rows, knots, &measurements, &spectra, &residuals)
+                        .expect("learn")
+                        .expect("enough samples");
+                    prior
+                        .fill_incomplete(&c, rows, &measurements, &mut spectra, noise_scale)
+                        .expect("fill")
+                },
+                BatchSize::LargeInput,
+            );
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_refine, bench_scene_prior);
 criterion_main!(benches);
