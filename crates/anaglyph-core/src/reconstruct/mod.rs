@@ -94,8 +94,9 @@ pub struct ReconstructedView {
     pub disparity: Vec<f32>,
     pub visibility: Visibility,
     pub demux: DemuxReport,
-    /// Median rms residual `‖P − Cŝ‖` of the view's pixels in reflectance units, before
-    /// refinement (None: not computed). It needs no truth: misregistration raises it.
+    /// Median rms residual `‖P − Cŝ‖` of the view's pixels in reflectance units, after the
+    /// scene prior and before the guided filter (None: not computed). It needs no truth:
+    /// misregistration raises it.
     pub median_residual: Option<f64>,
     /// What the scene prior did to the view (None: not applied, or too few complete
     /// pixels to learn it).
@@ -398,7 +399,8 @@ pub fn reconstruct(
     }
     timings.push(("warping".to_string(), warp_seconds));
     timings.push(("demultiplexing".to_string(), demux_seconds));
-    if settings.refinement.is_some() {
+    // The scene prior's time counts as refinement, with or without the guided filter.
+    if settings.refinement.is_some() || settings.scene_prior.is_some() {
         timings.push(("refinement".to_string(), refine_seconds));
     }
     Ok(LightField {
