@@ -36,8 +36,8 @@ use crate::refine::{
     ScenePriorReport, ScenePriorSettings,
 };
 use crate::register::{
-    estimate_search_range, gather_measurements, register_views, ArrayGeometry, GridImage,
-    RegistrationSettings, SearchRange, Visibility,
+    estimate_search_range, gather_measurements, neighbour_agreement, register_views, ArrayGeometry,
+    GridImage, RegistrationSettings, SearchRange, Visibility, LOW_AGREEMENT_WARNING,
 };
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
 use crate::{Error, Result};
@@ -92,6 +92,10 @@ pub struct ReconstructedView {
     pub reflectance: Vec<f32>,
     /// Disparity per column step (the simulator's convention), NaN where unknown.
     pub disparity: Vec<f32>,
+    /// Fraction of the view's disparities that a row or column neighbour's map confirms
+    /// ([`crate::register::neighbour_agreement`]; None: no finite disparity). It needs no
+    /// truth: a failed registration lowers it.
+    pub neighbour_agreement: Option<f64>,
     pub visibility: Visibility,
     pub demux: DemuxReport,
     /// Median rms residual `‖P − Cŝ‖` of the view's pixels in reflectance units, after the
@@ -273,6 +277,9 @@ pub fn reconstruct(
         }
     };
 
+    let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
+    let agreement = neighbour_agreement(&disparities, &positions, &geometry, w, h);
+
     let bands = rig.reconstruction_shape()?;
     let output = sensing.reported_offset..sensing.reported_offset + bands.count;
     let options = DemuxOptions {
@@ -386,11 +393,22 @@ pub fn reconstruct(
                 100.0 * visibility.seen_by_all
             ));
         }
+        if agreement[v] < LOW_AGREEMENT_WARNING {
+            warnings.push(format!(
+                "view r{}c{}: only {:.1} % of its disparities agree with a neighbouring view's \
+                 map; registration is unreliable (repetitive or textureless surfaces, or a \
+                 search range that misses the nearest surfaces)",
+                cam.row,
+                cam.col,
+                100.0 * agreement[v]
+            ));
+        }
         reconstructed.push(ReconstructedView {
             row: cam.row,
             col: cam.col,
             reflectance,
             disparity: disparities[v].clone(),
+            neighbour_agreement: agreement[v].is_finite().then_some(agreement[v]),
             visibility,
             demux,
             median_residual,
@@ -526,6 +544,7 @@ pub struct ViewSummary {
     pub visibility: Visibility,
     pub demux: DemuxReport,
     pub disparity_range: [f32; 2],
+    pub neighbour_agreement: Option<f64>,
     pub unmeasured_pixels: usize,
     pub median_residual: Option<f64>,
     pub scene_prior: Option<ScenePriorReport>,
@@ -543,6 +562,7 @@ impl ReconstructedView {
             visibility: self.visibility.clone(),
             demux: self.demux.clone(),
             disparity_range: range,
+            neighbour_agreement: self.neighbour_agreement,
             unmeasured_pixels: self.demux.unmeasured_pixels,
             median_residual: self.median_residual,
             scene_prior: self.scene_prior,

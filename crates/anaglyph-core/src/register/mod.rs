@@ -18,11 +18,13 @@
 //!   best half-array (occlusion-robust, Kang et al. 2001), refined by SGM, and checked
 //!   against the neighbouring views' maps.
 
+mod agreement;
 mod multi_baseline;
 mod pairwise;
 mod search_range;
 mod warp;
 
+pub use agreement::{confirmed_by_neighbours, neighbour_agreement, LOW_AGREEMENT_WARNING};
 pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};

@@ -15,17 +15,17 @@
 //! equiangular fit ([`crate::stereo::windowed_subpixel`] on a half-pixel grid: the
 //! parabola on SGM costs locks to whole pixels); finally each map is
 //! checked against its row and column neighbours' maps (a pixel is kept if at least one
-//! neighbour agrees within [`LEFT_RIGHT_TOLERANCE`]), failures are filled from the
+//! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), failures are filled from the
 //! background side and a 5×5 median smooths the result.
 
 use super::RegistrationSettings;
 use super::{
-    fill_from_background, find, smooth_within_surfaces, ArrayGeometry, GridImage, Registration,
-    SUBPIXEL_WINDOW_RADIUS,
+    confirmed_by_neighbours, fill_from_background, smooth_within_surfaces, ArrayGeometry,
+    GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, CostVolume,
-    FeatureMap, GreyImage, MatchSettings, MatchingCost, LEFT_RIGHT_TOLERANCE,
+    FeatureMap, GreyImage, MatchSettings, MatchingCost,
 };
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -401,56 +401,6 @@ fn half_step_subpixel(
         .collect()
 }
 
-/// Keeps pixels of view `i` that a row or column neighbour's map confirms; NaN elsewhere.
-fn cross_check(
-    disparities: &[Vec<f32>],
-    positions: &[(usize, usize)],
-    images: &[GridImage],
-    geometry: &ArrayGeometry,
-    i: usize,
-    width: usize,
-    height: usize,
-) -> Vec<f32> {
-    let (r, c) = positions[i];
-    let neighbours: Vec<(usize, (f64, f64))> = [
-        (r, c + 1),
-        (r, c.wrapping_sub(1)),
-        (r + 1, c),
-        (r.wrapping_sub(1), c),
-    ]
-    .iter()
-    .filter_map(|&(rr, cc)| find(images, rr, cc))
-    .map(|j| (j, geometry.shift(positions[i], positions[j])))
-    .collect();
-    if neighbours.is_empty() {
-        return disparities[i].clone();
-    }
-    disparities[i]
-        .iter()
-        .enumerate()
-        .map(|(p, &d)| {
-            if !d.is_finite() {
-                return f32::NAN;
-            }
-            let (x, y) = ((p % width) as f64, (p / width) as f64);
-            let confirmed = neighbours.iter().any(|&(j, (sx, sy))| {
-                let (xs, ys) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
-                xs >= 0.0
-                    && ys >= 0.0
-                    && xs < width as f64
-                    && ys < height as f64
-                    && (disparities[j][ys as usize * width + xs as usize] - d).abs()
-                        <= LEFT_RIGHT_TOLERANCE
-            });
-            if confirmed {
-                d
-            } else {
-                f32::NAN
-            }
-        })
-        .collect()
-}
-
 /// Multi-baseline registration of every view (see the module docs).
 pub fn multi_baseline_disparities(
     images: &[GridImage],
@@ -534,7 +484,7 @@ pub fn multi_baseline_disparities(
     let disparities = (0..images.len())
         .into_par_iter()
         .map(|i| {
-            let mut checked = cross_check(&raw, &positions, images, geometry, i, w, h);
+            let mut checked = confirmed_by_neighbours(&raw, &positions, geometry, i, w, h);
             fill_from_background(&mut checked, w);
             smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
         })
