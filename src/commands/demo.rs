@@ -405,10 +405,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     println!("   by a guided filter on its own capture");
     std::fs::create_dir_all(&args.out)?;
     let (presets, simulation) = run_presets(&args.out, &filters, args.size, args.seed)?;
-    println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   time");
+    println!("   (agreement: the lowest over the views of the fraction of disparities a neighbouring view's map confirms)");
+    println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   agreement   time");
     for p in &presets {
         println!(
-            "   {:<10} {:>8.2} dB / {:.4}              {:>8.2} dB / {:.4}                {:>6.2} / {:>6.2} dB    {:>4.1} %  {}",
+            "   {:<10} {:>8.2} dB / {:.4}              {:>8.2} dB / {:.4}                {:>6.2} / {:>6.2} dB    {:>4.1} %     {:.3}     {}",
             p.name,
             p.estimated.reference.psnr,
             p.estimated.reference.ssim,
@@ -417,6 +418,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             p.estimated.mean_psnr,
             p.true_disparity.mean_psnr,
             p.reference_bad2,
+            p.estimated.min_agreement,
             format_seconds(p.estimated.seconds)
         );
     }

@@ -33,6 +33,9 @@ pub struct RunScores {
     pub reference_seen_by_all: BandScores,
     pub mean_psnr: f64,
     pub mean_ssim: f64,
+    /// The lowest `neighbour_agreement` over the views (how far the registration agrees
+    /// with itself; `reconstruct` warns below 0.9).
+    pub min_agreement: f64,
     pub seconds: f64,
     pub timings: Vec<(String, f64)>,
 }
@@ -92,6 +95,11 @@ fn scores(
         mean_ssim: all.iter().map(|s| s.ssim).sum::<f64>() / n,
         reference: all.swap_remove(0),
         reference_seen_by_all: seen,
+        min_agreement: field
+            .views
+            .iter()
+            .filter_map(|v| v.neighbour_agreement)
+            .fold(f64::NAN, f64::min),
         seconds,
         timings: field.timings.clone(),
     })
