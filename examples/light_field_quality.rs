@@ -9,7 +9,8 @@
 //! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run;
 //! `ANAGLYPH_REFINEMENTS=none,4:1e-4:1.5` lists the guided refinements scored for each
 //! mode (`none`, or radius:epsilon:confidence with confidence 0 for equal weights;
-//! registration runs once per mode).
+//! registration runs once per mode), each optionally followed by `+NOISE_SCALE[@CLUSTERS]`
+//! to add the scene prior (`+0.5@1`: one Gaussian instead of the default mixture).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
@@ -48,12 +49,20 @@ fn main() -> anyhow::Result<()> {
         .split(',')
         .map(|item| -> anyhow::Result<_> {
             let (item, prior) = match item.split_once('+') {
-                Some((item, scale)) => (
-                    item,
-                    Some(ScenePriorSettings {
-                        noise_scale: scale.parse()?,
-                    }),
-                ),
+                Some((item, prior)) => {
+                    let (scale, clusters) = match prior.split_once('@') {
+                        Some((scale, clusters)) => (scale, clusters.parse()?),
+                        None => (prior, ScenePriorSettings::default().clusters),
+                    };
+                    let noise_scale = scale.parse()?;
+                    (
+                        item,
+                        Some(ScenePriorSettings {
+                            noise_scale,
+                            clusters,
+                        }),
+                    )
+                }
                 None => (item, None),
             };
             if item == "none" {
@@ -62,7 +71,7 @@ fn main() -> anyhow::Result<()> {
             let fields: Vec<&str> = item.split(':').collect();
             let [radius, epsilon, confidence] = fields[..] else {
                 anyhow::bail!(
-                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE for the scene prior"
+                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE[@CLUSTERS] for the scene prior"
                 );
             };
             let confidence: f64 = confidence.parse()?;
@@ -179,7 +188,10 @@ fn main() -> anyhow::Result<()> {
                     ),
                 };
                 if let Some(prior) = refinement.1 {
-                    label += &format!(", scene prior ×{}", prior.noise_scale);
+                    label += &format!(
+                        ", scene prior ×{} in {} clusters",
+                        prior.noise_scale, prior.clusters
+                    );
                 }
                 let nb = field.bands.len();
                 let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);

@@ -645,6 +645,12 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = ScenePriorSettings::default().noise_scale,
           value_parser = parse_positive)]
     pub scene_prior_noise: f64,
+    /// Scene prior: clusters of the complete pixels' spectra per k-means run (the prior is
+    /// a mixture of Gaussians over 4 runs); 1 gives one Gaussian, the scene's mean and
+    /// covariance.
+    #[arg(long, default_value_t = ScenePriorSettings::default().clusters as u32,
+          value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub scene_prior_clusters: u32,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

@@ -122,6 +122,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         }),
         scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
             noise_scale: args.scene_prior_noise,
+            clusters: args.scene_prior_clusters as usize,
         }),
     };
     let loading = started.elapsed().as_secs_f64();

@@ -54,6 +54,7 @@ fn bench_scene_prior(criterion: &mut Criterion) {
     let c = texture(rows * knots, 3);
     let c: Vec<f64> = c.iter().map(|&v| v as f64).collect();
     let noise_scale = ScenePriorSettings::default().noise_scale;
+    let clusters = ScenePriorSettings::default().clusters;
     for (w, h) in [(640usize, 480usize), (1920, 1080)] {
         let pixels = w * h;
         // Spectra from three texture planes (a low-rank scene), measured through C.
@@ -88,7 +89,7 @@ fn bench_scene_prior(criterion: &mut Criterion) {
         }
         let residuals = texture(pixels, 5);
         // The timed work must fill pixels, not reject them all at the gate.
-        let report = ScenePrior::learn(rows, knots, &measurements, &spectra, &residuals)
+        let report = ScenePrior::learn(rows, knots, &measurements, &spectra, &residuals, clusters)
             .expect("learn")
             .expect("enough samples")
             .fill_incomplete(&c, rows, &measurements, &mut spectra.clone(), noise_scale)
@@ -99,9 +100,16 @@ fn bench_scene_prior(criterion: &mut Criterion) {
             b.iter_batched(
                 || spectra.clone(),
                 |mut spectra| {
-                    let prior = ScenePrior::learn(rows, knots, &measurements, &spectra, &residuals)
-                        .expect("learn")
-                        .expect("enough samples");
+                    let prior = ScenePrior::learn(
+                        rows,
+                        knots,
+                        &measurements,
+                        &spectra,
+                        &residuals,
+                        clusters,
+                    )
+                    .expect("learn")
+                    .expect("enough samples");
                     prior
                         .fill_incomplete(&c, rows, &measurements, &mut spectra, noise_scale)
                         .expect("fill")

@@ -333,6 +333,7 @@ pub fn reconstruct(
                     &measurements,
                     &spectra,
                     &residuals,
+                    prior_settings.clusters,
                 )?;
                 if let Some(prior) = prior {
                     let report = prior.fill_incomplete(
