@@ -9,8 +9,9 @@
 //! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run;
 //! `ANAGLYPH_REFINEMENTS=none,4:1e-4:1.5` lists the guided refinements scored for each
 //! mode (`none`, or radius:epsilon:confidence with confidence 0 for equal weights;
-//! registration runs once per mode), each optionally followed by `+NOISE_SCALE[@CLUSTERS]`
-//! to add the scene prior (`+0.5@1`: one Gaussian instead of the default mixture).
+//! registration runs once per mode), each optionally followed by
+//! `+NOISE_SCALE[@CLUSTERS][^ROUNDS]` to add the scene prior (`+0.5@1`: one Gaussian
+//! instead of the default mixture; `+0.5^0`: no propagation rounds).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
@@ -50,9 +51,14 @@ fn main() -> anyhow::Result<()> {
         .map(|item| -> anyhow::Result<_> {
             let (item, prior) = match item.split_once('+') {
                 Some((item, prior)) => {
+                    let defaults = ScenePriorSettings::default();
+                    let (prior, rounds) = match prior.split_once('^') {
+                        Some((prior, rounds)) => (prior, rounds.parse()?),
+                        None => (prior, defaults.propagation_rounds),
+                    };
                     let (scale, clusters) = match prior.split_once('@') {
                         Some((scale, clusters)) => (scale, clusters.parse()?),
-                        None => (prior, ScenePriorSettings::default().clusters),
+                        None => (prior, defaults.clusters),
                     };
                     let noise_scale = scale.parse()?;
                     (
@@ -60,6 +66,7 @@ fn main() -> anyhow::Result<()> {
                         Some(ScenePriorSettings {
                             noise_scale,
                             clusters,
+                            propagation_rounds: rounds,
                         }),
                     )
                 }
@@ -71,7 +78,7 @@ fn main() -> anyhow::Result<()> {
             let fields: Vec<&str> = item.split(':').collect();
             let [radius, epsilon, confidence] = fields[..] else {
                 anyhow::bail!(
-                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE[@CLUSTERS] for the scene prior"
+                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE[@CLUSTERS][^ROUNDS] for the scene prior"
                 );
             };
             let confidence: f64 = confidence.parse()?;

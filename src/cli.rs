@@ -651,6 +651,12 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = ScenePriorSettings::default().clusters as u32,
           value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub scene_prior_clusters: u32,
+    /// Scene prior: rounds that add the materials the complete pixels lack, learned from
+    /// the pixels at least half the camera channels measure; 0 keeps the complete pixels'
+    /// mixture alone.
+    #[arg(long, default_value_t = ScenePriorSettings::default().propagation_rounds as u32,
+          value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub scene_prior_rounds: u32,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

@@ -665,6 +665,7 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
     assert!(manifest["views"][0]["median_residual"].as_f64().unwrap() > 0.0);
     assert_eq!(manifest["scene_prior"]["noise_scale"], 0.5);
     assert_eq!(manifest["scene_prior"]["clusters"], 32);
+    assert_eq!(manifest["scene_prior"]["propagation_rounds"], 2);
     // At 160 px wide the paper rig's disparities (f = 1800 px) leave about 1 % of each
     // view seen by every camera: too few pixels to learn a prior from, so none is applied.
     let views = manifest["views"].as_array().unwrap();

@@ -123,6 +123,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
             noise_scale: args.scene_prior_noise,
             clusters: args.scene_prior_clusters as usize,
+            propagation_rounds: args.scene_prior_rounds as usize,
         }),
     };
     let loading = started.elapsed().as_secs_f64();

@@ -325,33 +325,17 @@ pub fn reconstruct(
             let start = Instant::now();
             let mut residuals =
                 measurement_residuals(sensing.values(), sensing.rows(), &measurements, &spectra)?;
-            let mut prior_report = None;
-            if let Some(prior_settings) = settings.scene_prior {
-                let prior = ScenePrior::learn(
+            let prior_report = match &settings.scene_prior {
+                Some(prior_settings) => ScenePrior::fill_view(
+                    sensing.values(),
                     sensing.rows(),
-                    sensing.cols(),
                     &measurements,
-                    &spectra,
-                    &residuals,
-                    prior_settings.clusters,
-                )?;
-                if let Some(prior) = prior {
-                    let report = prior.fill_incomplete(
-                        sensing.values(),
-                        sensing.rows(),
-                        &measurements,
-                        &mut spectra,
-                        prior_settings.noise_scale,
-                    )?;
-                    residuals = measurement_residuals(
-                        sensing.values(),
-                        sensing.rows(),
-                        &measurements,
-                        &spectra,
-                    )?;
-                    prior_report = Some(report);
-                }
-            }
+                    &mut spectra,
+                    &mut residuals,
+                    prior_settings,
+                )?,
+                None => None,
+            };
             let (weights, median) = match confidence {
                 Some(scale) => {
                     let (weights, median) = confidence_weights(&residuals, scale)?;

@@ -24,6 +24,11 @@
 //! wildly there. The gate is looser for pixels that at most a quarter of the rows see:
 //! Eq. 6 has little to go on there, so falling back to it costs more.
 //!
+//! Some materials are never seen completely (a surface along the top of a view, which
+//! the lower row of cameras cannot reach). Propagation rounds ([`ScenePrior::fill_view`])
+//! add them: components learned from the filled estimates of pixels at least half the
+//! rows see join the mixture, and every under-measured pixel is estimated again.
+//!
 //! In: C (rows × knots), a view's measurements (`pixels × rows`, NaN where not seen), its
 //! spectra on all knots and their residuals ([`super::measurement_residuals`]). Out: the
 //! spectra of incompletely measured pixels replaced in place.
@@ -35,6 +40,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::HashMap;
+use std::ops::Range;
 
 /// Pixels per rayon task.
 const PIXELS_PER_TASK: usize = 4096;
@@ -56,6 +62,13 @@ const K_MEANS_RUNS: u64 = 4;
 const K_MEANS_SAMPLES: usize = 4096;
 /// Lloyd iterations of k-means at most.
 const K_MEANS_ITERATIONS: usize = 15;
+/// The least measurement noise assumed (rms, reflectance units): 0.1 % of white.
+const NOISE_FLOOR: f64 = 1e-3;
+/// A propagation round clusters its samples into this many times fewer clusters than the
+/// complete pixels (they hold the few materials the complete pixels lack): on the clutter
+/// preset 8 instead of 32 gave the same PSNR (36.95 / 36.97 dB with true disparities) at
+/// two thirds of the time.
+const EXTENSION_CLUSTER_DIVISOR: usize = 4;
 /// A cluster's covariance is shrunk towards the scene's with the weight of this many
 /// samples, so that small clusters stay positive definite.
 const SHRINKAGE_SAMPLES: f64 = 100.0;
@@ -78,6 +91,10 @@ pub struct ScenePriorSettings {
     /// Clusters per k-means run; 1 gives a single Gaussian (the scene's mean and
     /// covariance).
     pub clusters: usize,
+    /// Rounds that extend the mixture with the materials the complete pixels lack, from
+    /// the pixels at least half the rows measure (see [`ScenePrior::fill_view`]); 0 keeps
+    /// the complete pixels' mixture alone.
+    pub propagation_rounds: usize,
 }
 
 impl Default for ScenePriorSettings {
@@ -88,6 +105,7 @@ impl Default for ScenePriorSettings {
         ScenePriorSettings {
             noise_scale: 0.5,
             clusters: 32,
+            propagation_rounds: 2,
         }
     }
 }
@@ -97,6 +115,9 @@ impl Default for ScenePriorSettings {
 pub struct ScenePriorReport {
     /// Complete pixels whose spectra built the prior.
     pub samples: usize,
+    /// Incompletely but well measured pixels (at least half the rows) whose estimates
+    /// added components in the last propagation round.
+    pub propagated_samples: usize,
     /// Gaussians in the mixture.
     pub components: usize,
     /// Pixels whose spectra were replaced by the prior's estimate.
@@ -106,6 +127,14 @@ pub struct ScenePriorReport {
     pub rejected_pixels: usize,
     /// The measurement noise assumed, in reflectance units (rms per measurement).
     pub noise: f64,
+}
+
+/// Which pixels a prior learns from (besides a finite spectrum and residual).
+struct Eligible {
+    /// How many rows they have measured.
+    measured: Range<usize>,
+    /// A pixel whose residual exceeds this stays out even in the better half.
+    max_residual: Option<f32>,
 }
 
 /// One Gaussian of the mixture.
@@ -141,6 +170,30 @@ impl ScenePrior {
         residuals: &[f32],
         clusters: usize,
     ) -> Result<Option<ScenePrior>> {
+        Self::learn_from(
+            rows,
+            knots,
+            measurements,
+            spectra,
+            residuals,
+            clusters,
+            Eligible {
+                measured: rows..rows + 1,
+                max_residual: None,
+            },
+        )
+    }
+
+    /// [`ScenePrior::learn`] from the `eligible` pixels instead of the complete ones.
+    fn learn_from(
+        rows: usize,
+        knots: usize,
+        measurements: &[f32],
+        spectra: &[f32],
+        residuals: &[f32],
+        clusters: usize,
+        eligible: Eligible,
+    ) -> Result<Option<ScenePrior>> {
         check_shapes(rows, knots, measurements, spectra)?;
         let pixels = measurements.len() / rows;
         if residuals.len() != pixels {
@@ -156,25 +209,35 @@ impl ScenePrior {
                 "the mixture needs at least one cluster",
             ));
         }
-        let complete: Vec<usize> = (0..pixels)
+        let Eligible {
+            measured,
+            max_residual,
+        } = eligible;
+        let eligible: Vec<usize> = (0..pixels)
             .into_par_iter()
             .filter(|&px| {
                 residuals[px].is_finite()
-                    && measurements[px * rows..(px + 1) * rows]
-                        .iter()
-                        .all(|v| v.is_finite())
+                    && measured.contains(
+                        &measurements[px * rows..(px + 1) * rows]
+                            .iter()
+                            .filter(|v| v.is_finite())
+                            .count(),
+                    )
                     && spectra[px * knots..(px + 1) * knots]
                         .iter()
                         .all(|v| v.is_finite())
             })
             .collect();
-        if complete.is_empty() {
+        if eligible.is_empty() {
             return Ok(None);
         }
-        let mut sorted: Vec<f32> = complete.iter().map(|&px| residuals[px]).collect();
+        let mut sorted: Vec<f32> = eligible.iter().map(|&px| residuals[px]).collect();
         let middle = sorted.len() / 2;
-        let median = *sorted.select_nth_unstable_by(middle, f32::total_cmp).1;
-        let trusted: Vec<usize> = complete
+        let mut median = *sorted.select_nth_unstable_by(middle, f32::total_cmp).1;
+        if let Some(limit) = max_residual {
+            median = median.min(limit);
+        }
+        let trusted: Vec<usize> = eligible
             .into_iter()
             .filter(|&px| residuals[px] <= median)
             .collect();
@@ -234,6 +297,98 @@ impl ScenePrior {
             samples: count,
             noise: median as f64,
         }))
+    }
+
+    /// The mixture of this prior and one learned from `other`'s samples, each component's
+    /// weight scaled by its prior's share of the samples. The noise level stays this one's.
+    fn merged(mut self, other: ScenePrior) -> ScenePrior {
+        let total = (self.samples + other.samples) as f64;
+        let (own, theirs) = (
+            (self.samples as f64 / total).ln(),
+            (other.samples as f64 / total).ln(),
+        );
+        self.components.iter_mut().for_each(|c| c.log_weight += own);
+        self.components
+            .extend(other.components.into_iter().map(|mut c| {
+                c.log_weight += theirs;
+                c
+            }));
+        self.samples += other.samples;
+        self
+    }
+
+    /// The whole stage for one view: learns the prior from the complete pixels and fills
+    /// the under-measured ones, then propagates it `settings.propagation_rounds` times.
+    ///
+    /// Why propagate: a material the complete pixels lack (a surface near the top of the
+    /// view, which the lower row of cameras cannot see) has no component, so its pixels
+    /// take a wrong material's spectrum or fall back to Eq. 6. Where at least half the
+    /// rows measure such a surface, its filled estimate is good (the clutter preset's
+    /// pixels seen by the upper row alone: 38.4 dB). So each round learns further
+    /// components from those pixels — incomplete, at least half the rows, residual no
+    /// larger than the complete pixels' median — adds them to the complete pixels'
+    /// mixture (weights by sample count), and refills every under-measured pixel.
+    ///
+    /// `residuals` (per pixel, [`super::measurement_residuals`]) must match `spectra` on
+    /// entry and are updated to the final spectra. None when too few complete pixels
+    /// qualify (the spectra are left alone).
+    pub fn fill_view(
+        c: &[f64],
+        rows: usize,
+        measurements: &[f32],
+        spectra: &mut [f32],
+        residuals: &mut Vec<f32>,
+        settings: &ScenePriorSettings,
+    ) -> Result<Option<ScenePriorReport>> {
+        if rows == 0 || c.len() % rows != 0 {
+            return Err(Error::Shape {
+                op: "scene prior: C against rows".into(),
+                got: vec![c.len()],
+                expected: vec![rows],
+            });
+        }
+        let knots = c.len() / rows;
+        let Some(prior) = Self::learn(
+            rows,
+            knots,
+            measurements,
+            spectra,
+            residuals,
+            settings.clusters,
+        )?
+        else {
+            return Ok(None);
+        };
+        // Every round estimates all under-measured pixels again, so that a pixel the
+        // extended mixture rejects keeps the previous round's estimate.
+        let mut report =
+            prior.fill_incomplete(c, rows, measurements, spectra, settings.noise_scale)?;
+        *residuals = super::measurement_residuals(c, rows, measurements, spectra)?;
+        for _ in 0..settings.propagation_rounds {
+            let Some(extension) = Self::learn_from(
+                rows,
+                knots,
+                measurements,
+                spectra,
+                residuals,
+                settings.clusters.div_ceil(EXTENSION_CLUSTER_DIVISOR),
+                Eligible {
+                    measured: rows.div_ceil(2)..rows,
+                    max_residual: Some(prior.noise.max(NOISE_FLOOR) as f32),
+                },
+            )?
+            else {
+                break;
+            };
+            let added = extension.samples;
+            let extended = prior.clone().merged(extension);
+            report =
+                extended.fill_incomplete(c, rows, measurements, spectra, settings.noise_scale)?;
+            report.samples = prior.samples;
+            report.propagated_samples = added;
+            *residuals = super::measurement_residuals(c, rows, measurements, spectra)?;
+        }
+        Ok(Some(report))
     }
 
     /// Replaces the spectra of pixels that have some but not all rows measured with the
@@ -298,8 +453,8 @@ impl ScenePrior {
         let mut distinct = keys.clone();
         distinct.par_sort_unstable();
         distinct.dedup();
-        // Floor the noise at 0.1 % of white so that R stays positive definite.
-        let noise = (self.noise * noise_scale).max(1e-3);
+        // Floor the noise so that R stays positive definite.
+        let noise = (self.noise * noise_scale).max(NOISE_FLOOR);
         let white: Vec<f64> = c.chunks_exact(knots).map(|row| row.iter().sum()).collect();
         let projected: Vec<Projected> = self
             .components
@@ -350,6 +505,7 @@ impl ScenePrior {
         }
         Ok(ScenePriorReport {
             samples: self.samples,
+            propagated_samples: 0,
             components,
             filled_pixels: filled,
             rejected_pixels: rejected,
@@ -1064,6 +1220,71 @@ mod tests {
         assert!(single > 5.0 * mixture, "single {single}, mixture {mixture}");
         // The flat guess it started from.
         assert!(under_measured_error(&spectra, &truth) > 0.1);
+    }
+
+    #[test]
+    fn propagation_adds_a_material_the_complete_pixels_lack() {
+        // Material 0 is seen completely where px % 3 != 0; material 1 never is: rows 0..4
+        // there (at least half, and their spectra as good as Eq. 6 from four rows would
+        // give), rows 0 and 1 alone where px % 3 == 0 (as for material 0).
+        let (rows, knots, pixels) = (6, 6, 6000);
+        let (c, mut measurements, mut spectra, truth) = two_material_scene(pixels);
+        let material_of = |s: &[f32]| usize::from(s[0] > s[5]);
+        for px in 0..pixels {
+            let t = &truth[px * knots..(px + 1) * knots];
+            if material_of(t) == 1 && px % 3 != 0 {
+                measurements[px * rows + 4..(px + 1) * rows].fill(f32::NAN);
+                spectra[px * knots..(px + 1) * knots].copy_from_slice(t);
+            }
+        }
+        let error_with = |rounds: usize| {
+            let mut filled = spectra.clone();
+            let mut residuals =
+                crate::refine::measurement_residuals(&c, rows, &measurements, &filled).unwrap();
+            let settings = ScenePriorSettings {
+                noise_scale: 1.0,
+                clusters: 2,
+                propagation_rounds: rounds,
+            };
+            let report = ScenePrior::fill_view(
+                &c,
+                rows,
+                &measurements,
+                &mut filled,
+                &mut residuals,
+                &settings,
+            )
+            .unwrap()
+            .unwrap();
+            // The residuals follow the final spectra.
+            let expected =
+                crate::refine::measurement_residuals(&c, rows, &measurements, &filled).unwrap();
+            assert_eq!(residuals, expected);
+            let (mut sum, mut count) = (0.0f64, 0);
+            for px in (0..pixels).step_by(3) {
+                let t = &truth[px * knots..(px + 1) * knots];
+                if material_of(t) == 1 {
+                    let s = &filled[px * knots..(px + 1) * knots];
+                    sum += s
+                        .iter()
+                        .zip(t)
+                        .map(|(a, b)| ((a - b) as f64).powi(2))
+                        .sum::<f64>();
+                    count += knots;
+                }
+            }
+            ((sum / count as f64).sqrt(), report)
+        };
+        let (alone, alone_report) = error_with(0);
+        let (propagated, report) = error_with(2);
+        assert_eq!(alone_report.propagated_samples, 0);
+        assert!(report.propagated_samples > 500, "{report:?}");
+        assert!(report.components > alone_report.components, "{report:?}");
+        // Without the material, its two-row pixels are rejected (keeping the flat guess)
+        // or pulled towards the other material.
+        // (Measured: 0.19 without, 0.0045 with.)
+        assert!(alone > 0.1, "without propagation {alone}");
+        assert!(propagated < 0.01, "with propagation {propagated}");
     }
 
     #[test]
