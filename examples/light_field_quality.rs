@@ -196,8 +196,8 @@ fn main() -> anyhow::Result<()> {
                 };
                 if let Some(prior) = refinement.1 {
                     label += &format!(
-                        ", scene prior ×{} in {} clusters",
-                        prior.noise_scale, prior.clusters
+                        ", scene prior ×{} in {} clusters, {} propagation rounds",
+                        prior.noise_scale, prior.clusters, prior.propagation_rounds
                     );
                 }
                 let nb = field.bands.len();

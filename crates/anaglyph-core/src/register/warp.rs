@@ -8,6 +8,13 @@
 //! in front of the point has a larger disparity; a farther one means the reference pixel is
 //! wrong or the camera looks past an edge), the position lies inside the image, and no
 //! interpolation tap is invalid (saturated). Anything else is NaN: masked, never invented.
+//!
+//! One exception to the agreement: where the two maps disagree but the capture is flat
+//! along the epipolar line between the positions they imply, the value is the same
+//! whichever map is right, and it is kept. Textureless surfaces, whose maps are unreliable,
+//! keep their measurements; an edge between surfaces of different colour is not flat and
+//! stays masked. (An occluder of uniform colour over that stretch would pass, and its value
+//! be taken for the hidden point's; with the clutter's true maps PSNR did not move.)
 
 use super::ArrayGeometry;
 use crate::{Error, Result};
@@ -18,6 +25,19 @@ use serde::Serialize;
 /// source camera's disparity at the warped position for a measurement to count as visible
 /// (the left–right tolerance of the matcher).
 pub const CONSISTENCY_PX: f32 = 1.0;
+/// A measurement whose maps disagree is still visible where the capture is flat between
+/// the two positions: every value along the way within this fraction of the value at the
+/// reference's position...
+const FLAT_RELATIVE: f32 = 0.05;
+/// ...plus this much of white (about 2.5 σ of the simulator's shot noise at 30 % of
+/// white). On the clutter preset's r0c0 with estimated disparities, relative tolerances of
+/// 0.03 / 0.05 / 0.1 raised PSNR from 35.83 to 35.98 / 36.04 / 36.05 dB and SSIM from 0.954
+/// to 0.958 / 0.960 / 0.961, and moved the tabletop's by −0.01 / −0.02 / −0.06 dB.
+const FLAT_ABSOLUTE: f32 = 0.005;
+/// Longest stretch of the epipolar line (source pixels) tested for flatness.
+const MAX_FLAT_SPAN_PX: f64 = 48.0;
+/// Most channels per camera the flatness test handles (RGB and monochrome cameras).
+const MAX_CHANNELS: usize = 8;
 
 /// A capture in the sensing matrix's units (white-calibrated), NaN where unusable.
 #[derive(Debug, Clone)]
@@ -144,23 +164,13 @@ fn warp_one(
     if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
         return false;
     }
-    let (x0, y0) = (
-        (px.floor() as usize).min(w - 2),
-        (py.floor() as usize).min(h - 2),
-    );
-    let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
-    let taps = [
-        (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
-        (y0 * w + x0 + 1, fx * (1.0 - fy)),
-        ((y0 + 1) * w + x0, (1.0 - fx) * fy),
-        ((y0 + 1) * w + x0 + 1, fx * fy),
-    ];
+    let taps = bilinear_taps(w, h, px, py);
     // Depth order and consistency at every tap that contributes: interpolating across a
     // depth edge would mix the two surfaces' spectra.
     let consistent = taps
         .iter()
         .all(|&(p, k)| k <= 0.0 || (disparity[p] - d).abs() <= CONSISTENCY_PX);
-    if !consistent {
+    if !consistent && !flat_between(view, disparity, (sx, sy), x, y, d, &taps) {
         return false;
     }
     for (c, out) in dst.iter_mut().enumerate() {
@@ -176,6 +186,86 @@ fn warp_one(
         *out = value;
     }
     true
+}
+
+/// Bilinear sample of every channel of `view` at (px, py) into `out`; false outside.
+fn sample(view: &NormalisedView, px: f64, py: f64, out: &mut [f32]) -> bool {
+    let (w, h, ch) = (view.width, view.height, view.channels);
+    if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+        return false;
+    }
+    let taps = bilinear_taps(w, h, px, py);
+    for (c, o) in out.iter_mut().enumerate() {
+        *o = taps
+            .iter()
+            .filter(|&&(_, k)| k > 0.0)
+            .map(|&(p, k)| k * view.data[p * ch + c])
+            .sum();
+    }
+    out.iter().all(|v| v.is_finite())
+}
+
+/// The four pixels around (px, py), inside a `w × h` image, and their bilinear weights
+/// (a tap beyond the last row or column repeats it with weight 0).
+fn bilinear_taps(w: usize, h: usize, px: f64, py: f64) -> [(usize, f32); 4] {
+    let (x0, y0) = (
+        (px.floor().max(0.0) as usize).min(w - 1),
+        (py.floor().max(0.0) as usize).min(h - 1),
+    );
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+    [
+        (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
+        (y0 * w + x1, fx * (1.0 - fy)),
+        (y1 * w + x0, (1.0 - fx) * fy),
+        (y1 * w + x1, fx * fy),
+    ]
+}
+
+/// Whether the capture is flat along the epipolar line between the reference's disparity
+/// d and the source camera's own disparities at the taps: then the measurement is the
+/// same whichever map is right (a textureless surface whose maps disagree), and it is
+/// kept. An occlusion edge between different surfaces is not flat and stays masked.
+fn flat_between(
+    view: &NormalisedView,
+    disparity: &[f32],
+    (sx, sy): (f64, f64),
+    x: usize,
+    y: usize,
+    d: f32,
+    taps: &[(usize, f32); 4],
+) -> bool {
+    let (mut low, mut high) = (d, d);
+    for &(p, k) in taps {
+        if k > 0.0 {
+            let other = disparity[p];
+            if !other.is_finite() {
+                return false;
+            }
+            low = low.min(other);
+            high = high.max(other);
+        }
+    }
+    let speed = sx.abs().max(sy.abs());
+    let span_px = (high - low) as f64 * speed;
+    if span_px > MAX_FLAT_SPAN_PX || view.channels > MAX_CHANNELS {
+        return false;
+    }
+    let ch = view.channels;
+    let (mut centre, mut here) = ([0f32; MAX_CHANNELS], [0f32; MAX_CHANNELS]);
+    let (px, py) = (x as f64 + sx * d as f64, y as f64 + sy * d as f64);
+    if !sample(view, px, py, &mut centre[..ch]) {
+        return false;
+    }
+    let steps = span_px.ceil().max(1.0) as usize;
+    (0..=steps).all(|i| {
+        let t = low as f64 + (high - low) as f64 * i as f64 / steps as f64;
+        sample(view, x as f64 + sx * t, y as f64 + sy * t, &mut here[..ch])
+            && here[..ch]
+                .iter()
+                .zip(&centre[..ch])
+                .all(|(a, b)| (a - b).abs() <= FLAT_RELATIVE * b.abs() + FLAT_ABSOLUTE)
+    })
 }
 
 #[cfg(test)]
@@ -258,5 +348,49 @@ mod tests {
         }
         assert_eq!(visibility.measured_fraction[0], 1.0);
         assert!((visibility.seen_by_all - (w - 5) as f64 / w as f64).abs() < 1e-9);
+    }
+
+    /// One row of two cameras on a plane at disparity 2 whose right map is wrong (5) over
+    /// x in 10..14: where the capture is flat the measurement is kept, where it has texture
+    /// it is masked.
+    fn disagreeing_maps(right_data: Vec<f32>) -> Vec<f32> {
+        let (w, h) = (30usize, 1usize);
+        let geometry = ArrayGeometry {
+            rows: 1,
+            cols: 2,
+            baseline_ratio: 1.0,
+        };
+        let left_d = vec![2.0f32; w * h];
+        let right_d: Vec<f32> = (0..w)
+            .map(|x| if (10..14).contains(&x) { 5.0 } else { 2.0 })
+            .collect();
+        let views: Vec<NormalisedView> = [vec![0.4f32; w], right_data]
+            .into_iter()
+            .enumerate()
+            .map(|(col, data)| NormalisedView {
+                row: 0,
+                col,
+                width: w,
+                height: h,
+                channels: 1,
+                data,
+            })
+            .collect();
+        let (m, _) = gather_measurements(0, &views, &[left_d, right_d], &geometry).unwrap();
+        m.chunks_exact(2).map(|pair| pair[1]).collect()
+    }
+
+    #[test]
+    fn disagreeing_maps_keep_a_flat_measurement_and_mask_a_textured_one() {
+        let flat = disagreeing_maps(vec![0.4; 30]);
+        // Reference pixels 12..16 land on the wrong stretch of the right map.
+        for (x, v) in flat.iter().enumerate().skip(2) {
+            assert_eq!(*v, 0.4, "x {x}");
+        }
+        let textured = disagreeing_maps((0..30).map(|x| 0.2 + 0.02 * x as f32).collect());
+        for (x, v) in textured.iter().enumerate().skip(2) {
+            let on_the_wrong_stretch = (12..16).contains(&x);
+            assert_eq!(v.is_nan(), on_the_wrong_stretch, "x {x}: {v}");
+        }
     }
 }
