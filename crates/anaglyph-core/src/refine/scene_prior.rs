@@ -153,6 +153,9 @@ pub struct ScenePrior {
     knots: usize,
     components: Vec<Component>,
     samples: usize,
+    /// Trusted pixels the samples were drawn from (an even subsample of at most
+    /// `MAX_SAMPLES`): what a merged mixture weighs this one's components by.
+    trusted: usize,
     /// Median residual of the trusted samples, reflectance units.
     noise: f64,
 }
@@ -245,6 +248,7 @@ impl ScenePrior {
             return Ok(None);
         }
         let stride = trusted.len().div_ceil(MAX_SAMPLES);
+        let trusted_pixels = trusted.len();
         let samples: Vec<f64> = trusted
             .into_iter()
             .step_by(stride)
@@ -295,17 +299,18 @@ impl ScenePrior {
             knots,
             components,
             samples: count,
+            trusted: trusted_pixels,
             noise: median as f64,
         }))
     }
 
     /// The mixture of this prior and one learned from `other`'s samples, each component's
-    /// weight scaled by its prior's share of the samples. The noise level stays this one's.
+    /// weight scaled by its prior's share of the trusted pixels. The noise level stays this one's.
     fn merged(mut self, other: ScenePrior) -> ScenePrior {
-        let total = (self.samples + other.samples) as f64;
+        let total = (self.trusted + other.trusted) as f64;
         let (own, theirs) = (
-            (self.samples as f64 / total).ln(),
-            (other.samples as f64 / total).ln(),
+            (self.trusted as f64 / total).ln(),
+            (other.trusted as f64 / total).ln(),
         );
         self.components.iter_mut().for_each(|c| c.log_weight += own);
         self.components
@@ -314,6 +319,7 @@ impl ScenePrior {
                 c
             }));
         self.samples += other.samples;
+        self.trusted += other.trusted;
         self
     }
 
