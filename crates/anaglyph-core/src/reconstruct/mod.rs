@@ -7,7 +7,8 @@
 //!   -> register (the search range from a coarse pass when automatic; a disparity map per
 //!      view) -> warp every capture to each requested view
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
-//!   -> scene prior (pixels some camera misses, from the spectra of those all cameras see)
+//!   -> scene prior (pixels some camera misses, from the spectra of those all cameras see,
+//!      then of those at least half the camera channels see)
 //!   -> refine (guided by the view's own capture, when enabled)
 //! ```
 //!
