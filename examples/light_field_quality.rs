@@ -6,7 +6,8 @@
 //!
 //! `cargo run --release --example light_field_quality -- [WIDTH] [HEIGHT]`
 //! (default 640 480); `ANAGLYPH_PRESETS=tabletop` and
-//! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run;
+//! `ANAGLYPH_MODES=truth,pairwise,multi-baseline` narrow the run (`multi-baseline-luminance`
+//! matches luminance instead of the default common signals);
 //! `ANAGLYPH_REFINEMENTS=none,4:1e-4:1.5` lists the guided refinements scored for each
 //! mode (`none`, or radius:epsilon:confidence with confidence 0 for equal weights;
 //! registration runs once per mode), each optionally followed by
@@ -16,7 +17,9 @@
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
 use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
-use anaglyph_core::register::{ArrayGeometry, RegistrationMode, RegistrationSettings};
+use anaglyph_core::register::{
+    ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
+};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
@@ -152,8 +155,15 @@ fn main() -> anyhow::Result<()> {
                     (RegistrationMode::Pairwise, Some(maps))
                 }
                 "pairwise" => (RegistrationMode::Pairwise, None),
-                "multi-baseline" => (RegistrationMode::MultiBaseline, None),
+                "multi-baseline" | "multi-baseline-luminance" => {
+                    (RegistrationMode::MultiBaseline, None)
+                }
                 other => anyhow::bail!("unknown mode {other}"),
+            };
+            let matching_image = if mode == "multi-baseline-luminance" {
+                MatchingImage::Luminance
+            } else {
+                MatchingImage::CommonSignals
             };
             let mut pipeline = PipelineSettings {
                 registration: RegistrationSettings {
@@ -169,6 +179,7 @@ fn main() -> anyhow::Result<()> {
                 automatic_search_range: false,
                 refinement: refinements[0].0,
                 scene_prior: refinements[0].1,
+                matching_image,
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

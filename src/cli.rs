@@ -495,6 +495,16 @@ pub enum RegistrationChoice {
     Pairwise,
 }
 
+/// What multi-baseline registration compares the views by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MatchingImageChoice {
+    /// The leading common signals of the array: each camera's channels mixed into what
+    /// every camera can estimate, so that filters do not invert contrast between views.
+    CommonSignals,
+    /// Each camera's luminance (the paper's input).
+    Luminance,
+}
+
 /// Views of the array: `all` or a list like `r0c0,r1c2`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ViewList {
@@ -602,6 +612,9 @@ pub struct ReconstructArgs {
     pub illuminant: Option<String>,
     #[arg(long, value_enum, default_value_t = RegistrationChoice::MultiBaseline)]
     pub registration: RegistrationChoice,
+    /// What multi-baseline registration compares the views by.
+    #[arg(long, value_enum, default_value_t = MatchingImageChoice::CommonSignals)]
+    pub matching_image: MatchingImageChoice,
     /// Matching cost (multi-baseline registration needs mccnn).
     #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
     pub method: MatchMethod,

@@ -156,6 +156,7 @@ pub fn run_presets(
             automatic_search_range: false,
             refinement: Some(Default::default()),
             scene_prior: Some(Default::default()),
+            matching_image: Default::default(),
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

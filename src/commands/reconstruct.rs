@@ -4,14 +4,16 @@
 
 use super::format_seconds;
 use super::match_pair::{load_network, matching_cost};
-use crate::cli::{ReconstructArgs, RegistrationChoice, SearchRangeArg, ViewList};
+use crate::cli::{
+    MatchingImageChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg, ViewList,
+};
 use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
 };
 use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
-use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
+use anaglyph_core::register::{MatchingImage, RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{resolve_curve, Rig};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -125,6 +127,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             clusters: args.scene_prior_clusters as usize,
             propagation_rounds: args.scene_prior_rounds as usize,
         }),
+        matching_image: match args.matching_image {
+            MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
+            MatchingImageChoice::Luminance => MatchingImage::Luminance,
+        },
     };
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
@@ -147,6 +153,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "calibration": args.calibration.as_ref().map(|p| p.display().to_string()),
         "illuminant": args.illuminant,
         "registration": if settings.given_disparities.is_some() { "true disparities".to_string() } else { format!("{mode:?}") },
+        "matching_image": settings.matching_image,
         "true_disparity": args.true_disparity.as_ref().map(|p| p.display().to_string()),
         "method": format!("{:?}", args.method),
         "model": args.model.as_ref().map(|p| p.display().to_string()),

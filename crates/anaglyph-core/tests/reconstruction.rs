@@ -58,6 +58,7 @@ fn settings<'a>(
         automatic_search_range: false,
         refinement: None,
         scene_prior: None,
+        matching_image: Default::default(),
     }
 }
 
@@ -405,6 +406,7 @@ fn the_search_range_is_found_from_the_captures() {
             row: v.row,
             col: v.col,
             image,
+            matching: Vec::new(),
             measured: None,
         })
         .collect();

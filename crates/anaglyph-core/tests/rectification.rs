@@ -175,6 +175,7 @@ fn true_disparities_hold_again_after_rectification() {
         automatic_search_range: false,
         refinement: None,
         scene_prior: None,
+        matching_image: Default::default(),
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -242,6 +243,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         automatic_search_range: false,
         refinement: None,
         scene_prior: None,
+        matching_image: Default::default(),
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

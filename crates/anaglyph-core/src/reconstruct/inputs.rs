@@ -12,7 +12,7 @@
 
 use crate::io::{read_linear_image, LinearImage};
 use crate::rectify::CameraModel;
-use crate::register::NormalisedView;
+use crate::register::{fill_from_nearest, NormalisedView};
 use crate::rig::{Rig, SensingMatrix};
 use crate::simulate::Simulation;
 use crate::stereo::GreyImage;
@@ -240,36 +240,6 @@ impl ArrayCaptures {
     }
 }
 
-/// Replaces the NaNs of `row` by the nearest finite value (0 if there is none).
-fn fill_from_nearest(row: &mut [f32]) {
-    if row.iter().all(|v| v.is_finite()) {
-        return;
-    }
-    let known: Vec<usize> = (0..row.len()).filter(|&i| row[i].is_finite()).collect();
-    if known.is_empty() {
-        row.fill(0.0);
-        return;
-    }
-    let mut k = 0; // first known index at or after i
-    for i in 0..row.len() {
-        while k < known.len() && known[k] < i {
-            k += 1;
-        }
-        if row[i].is_finite() {
-            continue;
-        }
-        let before = k.checked_sub(1).map(|j| known[j]);
-        let after = known.get(k).copied();
-        let source = match (before, after) {
-            (Some(b), Some(a)) if i - b <= a - i => b,
-            (_, Some(a)) => a,
-            (Some(b), None) => b,
-            (None, None) => continue,
-        };
-        row[i] = row[source];
-    }
-}
-
 /// Mean and coefficient of variation of channel `c` over values below `saturation`.
 fn channel_statistics(image: &LinearImage, c: usize, saturation: f32) -> Option<(f64, f64)> {
     let (mut n, mut sum, mut sum2) = (0usize, 0.0f64, 0.0f64);
@@ -397,7 +367,7 @@ pub fn calibrate(
 
 #[cfg(test)]
 mod tests {
-    use super::fill_from_nearest;
+    use crate::register::fill_from_nearest;
 
     #[test]
     fn missing_values_take_the_nearest_value_of_their_row() {

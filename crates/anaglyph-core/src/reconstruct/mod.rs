@@ -37,10 +37,13 @@ use crate::refine::{
     ScenePriorReport, ScenePriorSettings,
 };
 use crate::register::{
-    estimate_search_range, gather_measurements, neighbour_agreement, register_views, ArrayGeometry,
-    GridImage, RegistrationSettings, SearchRange, Visibility, LOW_AGREEMENT_WARNING,
+    common_signal_images, common_signals, estimate_search_range, gather_measurements,
+    neighbour_agreement, register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage,
+    RegistrationMode, RegistrationSettings, SearchRange, Visibility, COMMON_SIGNALS,
+    LOW_AGREEMENT_WARNING,
 };
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
+use crate::stereo::GreyImage;
 use crate::{Error, Result};
 use serde::Serialize;
 use std::time::Instant;
@@ -82,6 +85,9 @@ pub struct PipelineSettings<'a> {
     /// Estimate under-measured pixels from the spectra of the view's complete pixels
     /// ([`crate::refine::ScenePrior`]); None: Eq. 6's smoothness alone decides them.
     pub scene_prior: Option<ScenePriorSettings>,
+    /// What multi-baseline registration compares the views by (pairwise registration
+    /// always matches luminance).
+    pub matching_image: MatchingImage,
 }
 
 /// One reconstructed view.
@@ -125,6 +131,8 @@ pub struct LightField {
     pub refinement: Option<GuidedRefinement>,
     /// The scene prior's settings (None: not used).
     pub scene_prior: Option<ScenePriorSettings>,
+    /// The common signals registration matched by (None: luminance, or no registration).
+    pub common_signals: Option<Vec<CommonSignal>>,
     pub condition_number: f64,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
@@ -227,6 +235,7 @@ pub fn reconstruct(
 
     let geometry = ArrayGeometry::of_rig(rig);
     let mut search_range = None;
+    let mut common = None;
     let disparities = match &settings.given_disparities {
         Some(given) => {
             if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
@@ -241,14 +250,33 @@ pub fn reconstruct(
             given.clone()
         }
         None => {
+            let matching = match settings.matching_image {
+                MatchingImage::CommonSignals
+                    if settings.registration.mode == RegistrationMode::MultiBaseline =>
+                {
+                    let channels: Vec<usize> = views.iter().map(|v| v.channels).collect();
+                    let signals = common_signals(&sensing, &channels, COMMON_SIGNALS)?;
+                    let images: Vec<Vec<GreyImage>> = signals
+                        .iter()
+                        .map(|signal| common_signal_images(&views, signal))
+                        .collect();
+                    common = Some(signals);
+                    (0..views.len())
+                        .map(|k| images.iter().map(|per_view| per_view[k].clone()).collect())
+                        .collect()
+                }
+                _ => vec![Vec::new(); views.len()],
+            };
             let images: Vec<GridImage> = captures
                 .grey_images()
                 .into_iter()
+                .zip(matching)
                 .zip(&captures.cameras)
-                .map(|(image, cam)| GridImage {
+                .map(|((image, matching), cam)| GridImage {
                     row: cam.row,
                     col: cam.col,
                     image,
+                    matching,
                     measured: cam.capture.data.iter().any(|v| v.is_nan()).then(|| {
                         cam.capture
                             .data
@@ -417,6 +445,7 @@ pub fn reconstruct(
         search_range,
         refinement: settings.refinement,
         scene_prior: settings.scene_prior,
+        common_signals: common,
         condition_number,
         timings,
         warnings,

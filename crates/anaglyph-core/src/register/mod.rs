@@ -19,12 +19,17 @@
 //!   against the neighbouring views' maps.
 
 mod agreement;
+mod common_signal;
+mod feature_projection;
 mod multi_baseline;
 mod pairwise;
 mod search_range;
 mod warp;
 
 pub use agreement::{confirmed_by_neighbours, neighbour_agreement, LOW_AGREEMENT_WARNING};
+pub use common_signal::{
+    common_signal_images, common_signals, CommonSignal, MatchingImage, COMMON_SIGNALS,
+};
 pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};
@@ -99,10 +104,44 @@ pub struct GridImage {
     pub row: usize,
     pub col: usize,
     pub image: GreyImage,
+    /// The images whose learned features multi-baseline registration compares (the common
+    /// signals, merged by [`feature_projection`]); empty: `image` itself. `image` stays the
+    /// guide of SGM's penalties and the input of pairwise matching and of the search range.
+    pub matching: Vec<GreyImage>,
     /// Which pixels hold a measurement (None: all). A rectified camera has none outside
     /// its source frame; multi-baseline matching gives such pixels no features, so they
     /// neither match nor attract matches (their disparity comes from SGM's neighbours).
     pub measured: Option<Vec<bool>>,
+}
+
+/// Replaces the NaNs of `row` by the nearest finite value (0 if there is none).
+pub fn fill_from_nearest(row: &mut [f32]) {
+    if row.iter().all(|v| v.is_finite()) {
+        return;
+    }
+    let known: Vec<usize> = (0..row.len()).filter(|&i| row[i].is_finite()).collect();
+    if known.is_empty() {
+        row.fill(0.0);
+        return;
+    }
+    let mut k = 0; // first known index at or after i
+    for i in 0..row.len() {
+        while k < known.len() && known[k] < i {
+            k += 1;
+        }
+        if row[i].is_finite() {
+            continue;
+        }
+        let before = k.checked_sub(1).map(|j| known[j]);
+        let after = known.get(k).copied();
+        let source = match (before, after) {
+            (Some(b), Some(a)) if i - b <= a - i => b,
+            (_, Some(a)) => a,
+            (Some(b), None) => b,
+            (None, None) => continue,
+        };
+        row[i] = row[source];
+    }
 }
 
 /// A disparity map per view (in `images` order, NaN where nothing could be estimated) and

@@ -18,6 +18,7 @@
 //! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), failures are filled from the
 //! background side and a 5×5 median smooths the result.
 
+use super::feature_projection::FeatureProjection;
 use super::RegistrationSettings;
 use super::{
     confirmed_by_neighbours, fill_from_background, smooth_within_surfaces, ArrayGeometry,
@@ -401,6 +402,16 @@ fn half_step_subpixel(
         .collect()
 }
 
+/// The images a view's features come from: its matching images if it has any, else its
+/// grey image.
+fn matching_images(view: &GridImage) -> Vec<&GreyImage> {
+    if view.matching.is_empty() {
+        vec![&view.image]
+    } else {
+        view.matching.iter().collect()
+    }
+}
+
 /// Multi-baseline registration of every view (see the module docs).
 pub fn multi_baseline_disparities(
     images: &[GridImage],
@@ -427,10 +438,29 @@ pub fn multi_baseline_disparities(
     let chain = MatchSettings::for_cost(&settings.cost, dm);
     let mut timings = Vec::new();
     let clock = Instant::now();
+    let projection = if matching_images(&images[0]).len() > 1 {
+        let maps: Vec<FeatureMap> = matching_images(&images[0])
+            .into_iter()
+            .map(|image| tower_features(network, image))
+            .collect();
+        let dims = maps[0].channels;
+        let fitted = FeatureProjection::fit(&maps, dims)?;
+        tracing::info!(
+            "feature projection keeps {:.4} of the energy",
+            fitted.energy_kept
+        );
+        Some(fitted)
+    } else {
+        None
+    };
     let features: Vec<CompactFeatures> = images
         .iter()
-        .map(|v| {
-            let mut compact = CompactFeatures::from(tower_features(network, &v.image));
+        .map(|v| -> Result<CompactFeatures> {
+            let map = match &projection {
+                Some(p) => p.merged_features(network, &matching_images(v))?,
+                None => tower_features(network, matching_images(v)[0]),
+            };
+            let mut compact = CompactFeatures::from(map);
             if let Some(measured) = &v.measured {
                 let c = compact.channels;
                 for (feature, _) in compact
@@ -442,9 +472,9 @@ pub fn multi_baseline_disparities(
                     feature.fill(0); // cosine 0 with everything: a neutral cost of 0.5
                 }
             }
-            compact
+            Ok(compact)
         })
-        .collect();
+        .collect::<Result<_>>()?;
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let flat = GreyImage {
         width: w,

@@ -67,6 +67,7 @@ fn downsample(view: &GridImage, factor: usize) -> GridImage {
             height: h,
             data,
         },
+        matching: Vec::new(),
         measured,
     }
 }
@@ -147,6 +148,7 @@ mod tests {
                 height: 2,
                 data: vec![0.0, 1.0, 2.0, 3.0, 1.0, 2.0, 3.0, 4.0],
             },
+            matching: Vec::new(),
             measured: Some(vec![true, true, true, false, true, true, true, true]),
         };
         let coarse = downsample(&view, 2);

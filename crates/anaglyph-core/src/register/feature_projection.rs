@@ -1,0 +1,262 @@
+//! Several matching images of a view merged into one learned feature per pixel, in
+//! multi-baseline registration (`common signals -> features -> multi-view cost`).
+//!
+//! Each image (one per common signal, [`super::common_signals`]) goes through the network's
+//! tower on its own; the concatenation of their unit features, each scaled by `1/√k`, has
+//! cosines that are the mean of the images' cosines. Storing it would multiply the memory
+//! and the cost-volume time by k, so it is projected onto the `dims` leading eigenvectors
+//! of its second-moment matrix (fitted once, on one view, and shared by all views so that
+//! cosines stay comparable) and normalised again.
+
+use crate::stereo::{tower_features, FeatureMap, GreyImage, MatchingNetwork};
+use crate::{Error, Result};
+use faer::{Mat, Side};
+use rayon::prelude::*;
+
+/// Every how many pixels the second-moment matrix samples.
+const FIT_STRIDE: usize = 7;
+/// Pixels per rayon task when projecting.
+const CHUNK_PIXELS: usize = 4096;
+
+/// The shared projection of k images' concatenated features onto `dims` dimensions.
+#[derive(Debug, Clone)]
+pub struct FeatureProjection {
+    /// Per image j, its block of the projection: `channels × dims`, row-major, already
+    /// scaled by `1/√k`.
+    blocks: Vec<Vec<f32>>,
+    channels: usize,
+    dims: usize,
+    /// Fraction of the concatenated features' energy the kept dimensions hold.
+    pub energy_kept: f64,
+}
+
+impl FeatureProjection {
+    /// Fits the projection to one view's feature maps (one per matching image, all of
+    /// the same size and width).
+    pub fn fit(maps: &[FeatureMap], dims: usize) -> Result<Self> {
+        let k = maps.len();
+        let c = maps.first().map_or(0, |m| m.channels);
+        let pixels = maps.first().map_or(0, |m| m.width * m.height);
+        if k == 0 || c == 0 || pixels == 0 || dims == 0 || dims > k * c {
+            return Err(Error::invalid(
+                "feature projection",
+                format!("{k} maps of {c} channels and {pixels} pixels onto {dims} dimensions"),
+            ));
+        }
+        if maps
+            .iter()
+            .any(|m| m.channels != c || m.width * m.height != pixels)
+        {
+            return Err(Error::invalid(
+                "feature projection",
+                "the maps differ in size or width",
+            ));
+        }
+        let total = k * c;
+        let scale = 1.0 / (k as f64).sqrt();
+        let sampled: Vec<usize> = (0..pixels).step_by(FIT_STRIDE).collect();
+        let mut moment = Mat::<f64>::zeros(total, total);
+        let mut concatenated = vec![0f64; total];
+        for &p in &sampled {
+            for (j, map) in maps.iter().enumerate() {
+                for (slot, &v) in concatenated[j * c..][..c]
+                    .iter_mut()
+                    .zip(&map.data[p * c..][..c])
+                {
+                    *slot = v as f64 * scale;
+                }
+            }
+            for a in 0..total {
+                let va = concatenated[a];
+                if va == 0.0 {
+                    continue;
+                }
+                for b in 0..=a {
+                    moment[(a, b)] += va * concatenated[b];
+                }
+            }
+        }
+        let symmetric = Mat::<f64>::from_fn(total, total, |a, b| {
+            if b <= a {
+                moment[(a, b)]
+            } else {
+                moment[(b, a)]
+            }
+        });
+        let eigen =
+            symmetric
+                .self_adjoint_eigen(Side::Lower)
+                .map_err(|e| Error::LinearAlgebra {
+                    op: "feature projection".into(),
+                    message: format!("{e:?}"),
+                })?;
+        let values = eigen.S().column_vector();
+        let energy: f64 = (0..total).map(|i| values[i].max(0.0)).sum();
+        // Eigenvalues come in nondecreasing order: the leading ones are last.
+        let kept: f64 = (0..dims).map(|r| values[total - 1 - r].max(0.0)).sum();
+        let blocks = (0..k)
+            .map(|j| {
+                let mut block = vec![0f32; c * dims];
+                for i in 0..c {
+                    for r in 0..dims {
+                        block[i * dims + r] =
+                            (eigen.U()[(j * c + i, total - 1 - r)] * scale) as f32;
+                    }
+                }
+                block
+            })
+            .collect();
+        Ok(FeatureProjection {
+            blocks,
+            channels: c,
+            dims,
+            energy_kept: if energy > 0.0 { kept / energy } else { 0.0 },
+        })
+    }
+
+    /// How many matching images the projection merges.
+    pub fn images(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Adds image `j`'s projected features to `out` (`pixels × dims`, row-major).
+    fn accumulate(&self, j: usize, map: &FeatureMap, out: &mut [f32]) {
+        let (c, dims) = (self.channels, self.dims);
+        let block = &self.blocks[j];
+        out.par_chunks_mut(CHUNK_PIXELS * dims)
+            .zip(map.data.par_chunks(CHUNK_PIXELS * c))
+            .for_each(|(dst, src)| {
+                let rows = src.len() / c;
+                faer::linalg::matmul::matmul(
+                    faer::MatMut::from_row_major_slice_mut(dst, rows, dims),
+                    faer::Accum::Add,
+                    faer::MatRef::from_row_major_slice(src, rows, c),
+                    faer::MatRef::from_row_major_slice(block, c, dims),
+                    1.0f32,
+                    faer::Par::Seq,
+                );
+            });
+    }
+
+    /// The merged, unit-length features of a view's matching images (`images` in the
+    /// order the projection was fitted with), computed one image at a time.
+    pub fn merged_features(
+        &self,
+        network: &MatchingNetwork,
+        images: &[&GreyImage],
+    ) -> Result<FeatureMap> {
+        if images.len() != self.images() {
+            return Err(Error::invalid(
+                "feature projection",
+                format!("{} images for a projection of {}", images.len(), self.images()),
+            ));
+        }
+        self.merge(images.iter().map(|image| tower_features(network, image)))
+    }
+
+    /// Projects and sums one feature map per matching image, then normalises each pixel.
+    fn merge(&self, maps: impl Iterator<Item = FeatureMap>) -> Result<FeatureMap> {
+        let mut merged: Option<FeatureMap> = None;
+        for (j, map) in maps.enumerate() {
+            let out = merged.get_or_insert_with(|| FeatureMap {
+                width: map.width,
+                height: map.height,
+                channels: self.dims,
+                data: vec![0f32; map.width * map.height * self.dims],
+            });
+            if j >= self.images()
+                || map.channels != self.channels
+                || (map.width, map.height) != (out.width, out.height)
+            {
+                return Err(Error::invalid(
+                    "feature projection",
+                    "the features do not match the projection",
+                ));
+            }
+            self.accumulate(j, &map, &mut out.data);
+        }
+        let mut merged = merged.ok_or_else(|| Error::invalid("feature projection", "no images"))?;
+        merged.data.par_chunks_mut(self.dims).for_each(|f| {
+            let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if norm > 0.0 {
+                f.iter_mut().for_each(|v| *v /= norm);
+            }
+        });
+        Ok(merged)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Random unit features (xorshift), `pixels` of `c` channels.
+    fn unit_features(pixels: usize, c: usize, seed: u64) -> FeatureMap {
+        let mut state = seed;
+        let mut data = Vec::with_capacity(pixels * c);
+        for _ in 0..pixels {
+            let f: Vec<f32> = (0..c)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+                })
+                .collect();
+            let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
+            data.extend(f.iter().map(|v| v / norm));
+        }
+        FeatureMap {
+            width: pixels,
+            height: 1,
+            channels: c,
+            data,
+        }
+    }
+
+    fn cosine(a: &[f32], b: &[f32]) -> f32 {
+        a.iter().zip(b).map(|(x, y)| x * y).sum()
+    }
+
+    /// Keeping every dimension, the merged cosine is the mean of the images' cosines.
+    #[test]
+    fn a_full_projection_averages_the_cosines_of_the_images() {
+        let (pixels, c) = (200, 6);
+        let view_a = [unit_features(pixels, c, 1), unit_features(pixels, c, 2)];
+        let view_b = [unit_features(pixels, c, 3), unit_features(pixels, c, 4)];
+        let projection = FeatureProjection::fit(&view_a, 2 * c).unwrap();
+        assert!((projection.energy_kept - 1.0).abs() < 1e-9);
+        let a = projection.merge(view_a.iter().cloned()).unwrap();
+        let b = projection.merge(view_b.iter().cloned()).unwrap();
+        for p in [0, 17, 199] {
+            let expected = 0.5
+                * (cosine(view_a[0].pixel(p, 0), view_b[0].pixel(p, 0))
+                    + cosine(view_a[1].pixel(p, 0), view_b[1].pixel(p, 0)));
+            let got = cosine(a.pixel(p, 0), b.pixel(p, 0));
+            assert!((got - expected).abs() < 1e-5, "pixel {p}: {got} against {expected}");
+        }
+    }
+
+    /// Two identical images span only one image's dimensions: projecting onto that many
+    /// loses nothing, and the cosines are the single image's.
+    #[test]
+    fn a_projection_onto_the_features_rank_loses_nothing() {
+        let (pixels, c) = (300, 5);
+        let a = unit_features(pixels, c, 7);
+        let b = unit_features(pixels, c, 8);
+        let projection = FeatureProjection::fit(&[a.clone(), a.clone()], c).unwrap();
+        assert!(projection.energy_kept > 1.0 - 1e-9, "{}", projection.energy_kept);
+        let merged_a = projection.merge([a.clone(), a.clone()].into_iter()).unwrap();
+        let merged_b = projection.merge([b.clone(), b.clone()].into_iter()).unwrap();
+        for p in [3, 150, 299] {
+            let expected = cosine(a.pixel(p, 0), b.pixel(p, 0));
+            let got = cosine(merged_a.pixel(p, 0), merged_b.pixel(p, 0));
+            assert!((got - expected).abs() < 1e-5, "pixel {p}: {got} against {expected}");
+        }
+        // Fewer dimensions than the rank keep less than all of the energy.
+        let smaller = FeatureProjection::fit(&[a.clone(), b.clone()], c).unwrap();
+        assert!(smaller.energy_kept < 0.99, "{}", smaller.energy_kept);
+        assert!(FeatureProjection::fit(&[a.clone()], c + 1).is_err());
+        assert!(projection.merge([a.clone(), a.clone(), a].into_iter()).is_err());
+    }
+}
