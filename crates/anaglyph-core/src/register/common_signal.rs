@@ -282,12 +282,19 @@ mod tests {
         assert_eq!(signals.len(), 2);
         let leading = &signals[0];
         assert_eq!(leading.weights.len(), 2);
-        let (a, b) = (contrast(&leading.weights[0], 0), contrast(&leading.weights[1], 3));
+        let (a, b) = (
+            contrast(&leading.weights[0], 0),
+            contrast(&leading.weights[1], 3),
+        );
         assert!(
             a * b > 0.0 && (a - b).abs() < 0.2 * a.abs().max(b.abs()),
             "contrasts {a} and {b}"
         );
-        assert!(leading.correlation.iter().all(|&r| r > 0.9), "{:?}", leading.correlation);
+        assert!(
+            leading.correlation.iter().all(|&r| r > 0.9),
+            "{:?}",
+            leading.correlation
+        );
         // A white surface reads positive in both cameras.
         let white = vec![1.0; wavelengths.len()];
         assert!(estimate(&sensing, &leading.weights[0], 0, &white) > 0.0);

@@ -148,7 +148,11 @@ impl FeatureProjection {
         if images.len() != self.images() {
             return Err(Error::invalid(
                 "feature projection",
-                format!("{} images for a projection of {}", images.len(), self.images()),
+                format!(
+                    "{} images for a projection of {}",
+                    images.len(),
+                    self.images()
+                ),
             ));
         }
         self.merge(images.iter().map(|image| tower_features(network, image)))
@@ -233,7 +237,10 @@ mod tests {
                 * (cosine(view_a[0].pixel(p, 0), view_b[0].pixel(p, 0))
                     + cosine(view_a[1].pixel(p, 0), view_b[1].pixel(p, 0)));
             let got = cosine(a.pixel(p, 0), b.pixel(p, 0));
-            assert!((got - expected).abs() < 1e-5, "pixel {p}: {got} against {expected}");
+            assert!(
+                (got - expected).abs() < 1e-5,
+                "pixel {p}: {got} against {expected}"
+            );
         }
     }
 
@@ -245,18 +252,31 @@ mod tests {
         let a = unit_features(pixels, c, 7);
         let b = unit_features(pixels, c, 8);
         let projection = FeatureProjection::fit(&[a.clone(), a.clone()], c).unwrap();
-        assert!(projection.energy_kept > 1.0 - 1e-9, "{}", projection.energy_kept);
-        let merged_a = projection.merge([a.clone(), a.clone()].into_iter()).unwrap();
-        let merged_b = projection.merge([b.clone(), b.clone()].into_iter()).unwrap();
+        assert!(
+            projection.energy_kept > 1.0 - 1e-9,
+            "{}",
+            projection.energy_kept
+        );
+        let merged_a = projection
+            .merge([a.clone(), a.clone()].into_iter())
+            .unwrap();
+        let merged_b = projection
+            .merge([b.clone(), b.clone()].into_iter())
+            .unwrap();
         for p in [3, 150, 299] {
             let expected = cosine(a.pixel(p, 0), b.pixel(p, 0));
             let got = cosine(merged_a.pixel(p, 0), merged_b.pixel(p, 0));
-            assert!((got - expected).abs() < 1e-5, "pixel {p}: {got} against {expected}");
+            assert!(
+                (got - expected).abs() < 1e-5,
+                "pixel {p}: {got} against {expected}"
+            );
         }
         // Fewer dimensions than the rank keep less than all of the energy.
         let smaller = FeatureProjection::fit(&[a.clone(), b.clone()], c).unwrap();
         assert!(smaller.energy_kept < 0.99, "{}", smaller.energy_kept);
         assert!(FeatureProjection::fit(&[a.clone()], c + 1).is_err());
-        assert!(projection.merge([a.clone(), a.clone(), a].into_iter()).is_err());
+        assert!(projection
+            .merge([a.clone(), a.clone(), a].into_iter())
+            .is_err());
     }
 }
