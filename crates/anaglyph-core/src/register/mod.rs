@@ -16,7 +16,9 @@
 //! - *multi-baseline*: the learned features of a view are compared with those of every
 //!   other view at the disparity the array geometry predicts, costs are summed over the
 //!   best half-array (occlusion-robust, Kang et al. 2001), refined by SGM, and checked
-//!   against the neighbouring views' maps.
+//!   against the neighbouring views' maps. By default the features come from the array's
+//!   common signals ([`common_signals`]: what every camera's channels can estimate alike,
+//!   so that filters do not invert contrast between views), merged by a shared projection.
 
 mod agreement;
 mod common_signal;

@@ -1,6 +1,9 @@
 //! Multi-baseline registration: one disparity per pixel of a reference view, tested
 //! against every other view of the array at once.
 //!
+//! Each view's features come from its matching images: its common signals (merged into one
+//! feature per pixel by a [`FeatureProjection`] fitted on the first view), or its grey image.
+//!
 //! For disparity d, pixel (x, y) of the reference is compared with the learned features of
 //! view v at `(x, y) + d · shift(v)` (the array geometry, [`ArrayGeometry::shift`]); a
 //! fractional row position interpolates the two dot products, which is exact for the
