@@ -245,6 +245,90 @@ pub fn fill_from_background(disparity: &mut [f32], width: usize) {
     }
 }
 
+/// Fills NaN pixels with the candidate their matching cost prefers: the nearest valid
+/// disparities to the left, right, above and below. `cost(x, y, d)` is the pixel's cost at
+/// disparity d (NaN where nothing sees it). Where no candidate has a finite cost the
+/// pixel falls back to [`fill_from_background`]'s rule along its row, then its column.
+///
+/// A row scan alone cannot tell the background at the image edge, where one side is
+/// missing, nor across a thin band bounded above and below: in the periodic scene a strip
+/// of the background between a sphere and a box, seen by one row of cameras only, took the
+/// disparity of the grating on its left, half a period of the background's checker off,
+/// and every warped measurement there read the other colour.
+pub fn fill_by_cost(
+    disparity: &mut [f32],
+    width: usize,
+    height: usize,
+    cost: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
+) {
+    use rayon::prelude::*;
+    let nearest = |len: usize, value: &dyn Fn(usize) -> f32| -> (Vec<f32>, Vec<f32>) {
+        let (mut before, mut after) = (vec![f32::NAN; len], vec![f32::NAN; len]);
+        let mut last = f32::NAN;
+        for (i, slot) in before.iter_mut().enumerate() {
+            *slot = last;
+            if value(i).is_finite() {
+                last = value(i);
+            }
+        }
+        last = f32::NAN;
+        for i in (0..len).rev() {
+            after[i] = last;
+            if value(i).is_finite() {
+                last = value(i);
+            }
+        }
+        (before, after)
+    };
+    let source: &[f32] = disparity;
+    // Column neighbours, laid out [x][y] by the scans and read back per pixel.
+    let columns: Vec<(Vec<f32>, Vec<f32>)> = (0..width)
+        .into_par_iter()
+        .map(|x| nearest(height, &|y| source[y * width + x]))
+        .collect();
+    let filled: Vec<(usize, f32)> = (0..height)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let row = &source[y * width..][..width];
+            let (left, right) = nearest(width, &|x| row[x]);
+            let columns = &columns;
+            (0..width).filter(|&x| !row[x].is_finite()).map(move |x| {
+                let (up, down) = (columns[x].0[y], columns[x].1[y]);
+                let mut best = (f32::INFINITY, f32::NAN);
+                for candidate in [left[x], right[x], up, down] {
+                    if candidate.is_finite() {
+                        let c = cost(x, y, candidate);
+                        // Equal costs go to the background (the smaller disparity).
+                        if c < best.0 || (c == best.0 && candidate < best.1) {
+                            best = (c, candidate);
+                        }
+                    }
+                }
+                let fallback = |a: f32, b: f32| match (a.is_finite(), b.is_finite()) {
+                    (true, true) => a.min(b),
+                    (true, false) => a,
+                    (false, true) => b,
+                    (false, false) => f32::NAN,
+                };
+                let value = if best.1.is_finite() {
+                    best.1
+                } else {
+                    let along_row = fallback(left[x], right[x]);
+                    if along_row.is_finite() {
+                        along_row
+                    } else {
+                        fallback(up, down)
+                    }
+                };
+                (y * width + x, value)
+            })
+        })
+        .collect();
+    for (i, value) in filled {
+        disparity[i] = value;
+    }
+}
+
 /// Window radius of [`smooth_within_surfaces`], pixels.
 pub const SURFACE_SMOOTHING_RADIUS: usize = 4;
 /// Spatial Gaussian σ of [`smooth_within_surfaces`], pixels.
@@ -344,6 +428,53 @@ mod tests {
         }
         // The edge between 19 and 20 stays sharp.
         assert!(smooth[10 * w + 19] < 11.5 && smooth[10 * w + 20] > 29.0);
+    }
+
+    /// A band at the right edge, bounded by 20 on its left, 10 above and 30 below: the row
+    /// rule can only take 20; the cost picks the candidate the pixels match best.
+    #[test]
+    fn cost_fill_takes_the_cheapest_neighbour() {
+        let nan = f32::NAN;
+        let (w, h) = (6, 5);
+        let mut d = vec![10.0; w * h];
+        for y in 1..4 {
+            d[y * w] = 20.0;
+            d[y * w + 1] = 20.0;
+            for x in 2..w {
+                d[y * w + x] = nan;
+            }
+        }
+        for x in 0..w {
+            d[4 * w + x] = 30.0;
+        }
+        let mut by_row = d.clone();
+        fill_from_background(&mut by_row, w);
+        assert_eq!(by_row[2 * w + 4], 20.0);
+
+        // Rows 1–2 belong to the surface above (10), row 3 to the one below (30).
+        let truth = |y: usize| if y < 3 { 10.0 } else { 30.0 };
+        let cost = |_x: usize, y: usize, d: f32| (d - truth(y)).abs();
+        let mut by_cost = d.clone();
+        fill_by_cost(&mut by_cost, w, h, &cost);
+        for y in 1..4 {
+            for x in 2..w {
+                assert_eq!(by_cost[y * w + x], truth(y), "({x}, {y})");
+            }
+        }
+        // Valid pixels are untouched.
+        assert_eq!(by_cost[w], 20.0);
+
+        // Equal costs go to the smaller disparity; no finite cost falls back to the row rule.
+        let mut tied = d.clone();
+        fill_by_cost(&mut tied, w, h, &|_, _, _| 0.5);
+        assert!(tied[w + 2..2 * w].iter().all(|&v| v == 10.0));
+        let mut unseen = d.clone();
+        fill_by_cost(&mut unseen, w, h, &|_, _, _| nan);
+        assert_eq!(unseen, by_row);
+        // A column without valid pixels above or below, in a row without any: stays NaN.
+        let mut empty = vec![nan; 4];
+        fill_by_cost(&mut empty, 2, 2, &|_, _, _| 0.0);
+        assert!(empty.iter().all(|v| v.is_nan()));
     }
 
     #[test]

@@ -18,14 +18,15 @@
 //! equiangular fit ([`crate::stereo::windowed_subpixel`] on a half-pixel grid: the
 //! parabola on SGM costs locks to whole pixels); finally each map is
 //! checked against its row and column neighbours' maps (a pixel is kept if at least one
-//! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), failures are filled from the
-//! background side and a 5×5 median smooths the result.
+//! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), each failure takes
+//! whichever of its nearest valid neighbours left, right, above and below has the lowest
+//! multi-view cost at the pixel ([`fill_by_cost`]), and a 5×5 median smooths the result.
 
 use super::feature_projection::FeatureProjection;
 use super::RegistrationSettings;
 use super::{
-    confirmed_by_neighbours, fill_from_background, smooth_within_surfaces, ArrayGeometry,
-    GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
+    confirmed_by_neighbours, fill_by_cost, smooth_within_surfaces, ArrayGeometry, GridImage,
+    Registration, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, CostVolume,
@@ -103,6 +104,26 @@ fn halves_of(from: (usize, usize), to: (usize, usize)) -> [bool; HALVES] {
     [to.1 < from.1, to.1 > from.1, to.0 < from.0, to.0 > from.0]
 }
 
+/// Every view but `reference`: its index, its shift per unit disparity and the half-arrays
+/// it belongs to.
+fn others_of(
+    positions: &[(usize, usize)],
+    reference: usize,
+    geometry: &ArrayGeometry,
+) -> Vec<(usize, (f64, f64), [bool; HALVES])> {
+    let me = positions[reference];
+    (0..positions.len())
+        .filter(|&v| v != reference)
+        .map(|v| {
+            (
+                v,
+                geometry.shift(me, positions[v]),
+                halves_of(me, positions[v]),
+            )
+        })
+        .collect()
+}
+
 /// The occlusion-robust multi-view cost volume of view `reference` (see the module docs).
 pub fn multi_view_cost_volume(
     features: &[CompactFeatures],
@@ -113,17 +134,7 @@ pub fn multi_view_cost_volume(
 ) -> CostVolume {
     let fr = &features[reference];
     let (w, h) = (fr.width, fr.height);
-    let me = positions[reference];
-    let others: Vec<(usize, (f64, f64), [bool; HALVES])> = (0..features.len())
-        .filter(|&v| v != reference)
-        .map(|v| {
-            (
-                v,
-                geometry.shift(me, positions[v]),
-                halves_of(me, positions[v]),
-            )
-        })
-        .collect();
+    let others = others_of(positions, reference, geometry);
     #[cfg(target_arch = "x86_64")]
     let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
     let mut volume = CostVolume::new(w, h, max_disp);
@@ -310,17 +321,7 @@ fn half_step_costs(
 ) -> Vec<[f32; 4]> {
     let fr = &features[reference];
     let w = fr.width;
-    let me = positions[reference];
-    let others: Vec<(usize, (f64, f64), [bool; HALVES])> = (0..features.len())
-        .filter(|&v| v != reference)
-        .map(|v| {
-            (
-                v,
-                geometry.shift(me, positions[v]),
-                halves_of(me, positions[v]),
-            )
-        })
-        .collect();
+    let others = others_of(positions, reference, geometry);
     let mut out = vec![[f32::NAN; 4]; disparity.len()];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let job = RowJob {
@@ -510,18 +511,28 @@ pub fn multi_baseline_disparities(
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
     }
-    drop(features);
     timings.push(("multi-view cost".to_string(), cost_seconds));
     timings.push(("SGM + subpixel".to_string(), refine_seconds));
     let clock = Instant::now();
     let disparities = (0..images.len())
-        .into_par_iter()
         .map(|i| {
             let mut checked = confirmed_by_neighbours(&raw, &positions, geometry, i, w, h);
-            fill_from_background(&mut checked, w);
+            let others = others_of(&positions, i, geometry);
+            let cost = |x: usize, y: usize, d: f32| {
+                let job = RowJob {
+                    features: &features,
+                    others: &others,
+                    reference: &features[i],
+                    y,
+                    max_disp: 0,
+                };
+                cost_at(&job, x, d as f64)
+            };
+            fill_by_cost(&mut checked, w, h, &cost);
             smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
         })
         .collect();
+    drop(features);
     timings.push((
         "cross-check, fill, median".to_string(),
         clock.elapsed().as_secs_f64(),
