@@ -572,9 +572,10 @@ material = { pattern = "grating", period_mm = 8, angle_deg = 0, srgb = [0.9, 0.3
         scores.push(measure(&field, &simulation, &rig));
     }
     eprintln!("luminance {:?}; common signals {:?}", scores[0], scores[1]);
-    // Measured (r0c0 / all views, no refinement): luminance 14.37 / 16.19 dB, common
-    // signals 21.28 / 26.05 dB. Nearly every disparity is off by whole periods either way
-    // (the grating fills the frame, so nothing fixes the period): only the phase matters.
-    assert!(scores[1].0 > scores[0].0 + 5.5, "{scores:?}");
+    // Measured (r0c0 / all views, no refinement): luminance 19.08 / 18.59 dB, common
+    // signals 23.62 / 28.58 dB (14.37 / 16.19 and 21.28 / 26.05 before the cross-check's
+    // failures were filled by cost). Nearly every disparity is off by whole periods either
+    // way (the grating fills the frame, so nothing fixes the period): only the phase matters.
+    assert!(scores[1].0 > scores[0].0 + 3.5, "{scores:?}");
     assert!(scores[1].2 > scores[0].2 + 8.5, "{scores:?}");
 }
