@@ -274,7 +274,7 @@ mod tests {
         // Fewer dimensions than the rank keep less than all of the energy.
         let smaller = FeatureProjection::fit(&[a.clone(), b.clone()], c).unwrap();
         assert!(smaller.energy_kept < 0.99, "{}", smaller.energy_kept);
-        assert!(FeatureProjection::fit(&[a.clone()], c + 1).is_err());
+        assert!(FeatureProjection::fit(std::slice::from_ref(&a), c + 1).is_err());
         assert!(projection
             .merge([a.clone(), a.clone(), a].into_iter())
             .is_err());
