@@ -158,6 +158,18 @@ impl FeatureProjection {
         self.merge(images.iter().map(|image| tower_features(network, image)))
     }
 
+    /// [`Self::merged_features`] of maps already computed (one per matching image, in the
+    /// order the projection was fitted with).
+    pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
+        if maps.len() != self.images() {
+            return Err(Error::invalid(
+                "feature projection",
+                format!("{} maps for a projection of {}", maps.len(), self.images()),
+            ));
+        }
+        self.merge(maps.into_iter())
+    }
+
     /// Projects and sums one feature map per matching image, then normalises each pixel.
     fn merge(&self, maps: impl Iterator<Item = FeatureMap>) -> Result<FeatureMap> {
         let mut merged: Option<FeatureMap> = None;
@@ -232,6 +244,9 @@ mod tests {
         assert!((projection.energy_kept - 1.0).abs() < 1e-9);
         let a = projection.merge(view_a.iter().cloned()).unwrap();
         let b = projection.merge(view_b.iter().cloned()).unwrap();
+        // Merging maps already computed is the same merge; a wrong count is refused.
+        assert_eq!(projection.merged_maps(view_b.to_vec()).unwrap(), b);
+        assert!(projection.merged_maps(view_b[..1].to_vec()).is_err());
         for p in [0, 17, 199] {
             let expected = 0.5
                 * (cosine(view_a[0].pixel(p, 0), view_b[0].pixel(p, 0))
