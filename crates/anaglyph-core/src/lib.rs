@@ -35,6 +35,7 @@
 
 pub mod builtin;
 pub mod capture;
+mod cpu;
 pub mod demux;
 mod error;
 pub mod evaluation;

@@ -136,7 +136,7 @@ pub fn multi_view_cost_volume(
     let (w, h) = (fr.width, fr.height);
     let others = others_of(positions, reference, geometry);
     #[cfg(target_arch = "x86_64")]
-    let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+    let avx2 = crate::cpu::has_avx2_fma();
     let mut volume = CostVolume::new(w, h, max_disp);
     // Per task: running sums and counts per half-array, laid out [half][d][x] so that the
     // inner loop over x writes contiguously.

@@ -1,11 +1,12 @@
 //! The learned cross-spectral matching cost (paper section 2.2, MC-CNN): each image,
 //! normalised by its own mean and standard deviation, goes through the network's
-//! convolutional tower (3×3 "same" convolutions as im2col + `gemm`, in row blocks over
-//! rayon); the fast network compares the L2-normalised features by cosine similarity, the
+//! convolutional tower (3×3 "same" convolutions: Winograd F(4×4, 3×3) + `gemm` where a
+//! layer has many inputs, im2col + `gemm` for the first; in row blocks over rayon); the fast network compares the L2-normalised features by cosine similarity, the
 //! accurate one runs its fully connected layers on every (pixel, disparity) pair. The
 //! result is an ordinary [`CostVolume`] in [0, 1] for the refinement chain.
 
 use super::network::{ConvLayer, MatchingNetwork, KERNEL};
+use super::winograd::winograd_convolve;
 use super::{CostVolume, GreyImage};
 use rayon::prelude::*;
 
@@ -85,8 +86,21 @@ pub fn normalise_image(image: &GreyImage) -> GreyImage {
 /// Output pixels per gemm block (a few hundred KB of im2col columns).
 const BLOCK_PIXELS: usize = 1024;
 
+/// Input channels from which a layer goes through Winograd's transform instead of im2col
+/// (below it, the transforms cost more than they save: the first layer sees one channel).
+const WINOGRAD_MIN_INPUTS: usize = 8;
+
 /// One "same" 3×3 convolution (zero padding) plus bias, optionally rectified.
 fn convolve(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
+    if layer.inputs >= WINOGRAD_MIN_INPUTS {
+        winograd_convolve(input, layer, relu)
+    } else {
+        convolve_direct(input, layer, relu)
+    }
+}
+
+/// [`convolve`] as im2col and one `gemm` per block of pixels.
+pub(crate) fn convolve_direct(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
     let (w, h, cin, cout) = (input.width, input.height, layer.inputs, layer.outputs);
     let k = KERNEL * KERNEL * cin;
     let rows_per_block = (BLOCK_PIXELS / w.max(1)).max(1);

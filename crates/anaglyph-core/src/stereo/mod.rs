@@ -17,6 +17,7 @@ mod mutual_information;
 mod network;
 mod refine;
 mod sgm;
+mod winograd;
 mod zncc;
 
 pub use census::census_cost_volume;
