@@ -49,34 +49,52 @@ pub fn measurement_residuals(
             }
         })
         .collect();
+    // Cᵀ, so that a chunk's predictions are one product: (pixels × knots) · (knots × rows).
+    let c_t: Vec<f64> = (0..cols * rows)
+        .map(|k| c[(k % rows) * cols + k / rows])
+        .collect();
     let mut residuals = vec![f32::NAN; pixels];
     residuals
         .par_chunks_mut(PIXELS_PER_TASK)
         .zip(measurements.par_chunks(PIXELS_PER_TASK * rows))
         .zip(spectra.par_chunks(PIXELS_PER_TASK * cols))
-        .for_each(|((out, p), s)| {
-            for ((value, p), s) in out
-                .iter_mut()
-                .zip(p.chunks_exact(rows))
-                .zip(s.chunks_exact(cols))
-            {
-                if s.iter().any(|v| !v.is_finite()) {
-                    continue;
-                }
-                let (mut sum, mut count) = (0.0f64, 0usize);
-                for (r, row) in c.chunks_exact(cols).enumerate() {
-                    if !p[r].is_finite() {
+        .for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(spectra64, predicted): &mut (Vec<f64>, Vec<f64>), ((out, p), s)| {
+                let n = out.len();
+                spectra64.clear();
+                spectra64.extend(s.iter().map(|&v| v as f64));
+                predicted.resize(n * rows, 0.0);
+                faer::linalg::matmul::matmul(
+                    faer::MatMut::from_row_major_slice_mut(predicted, n, rows),
+                    faer::Accum::Replace,
+                    faer::MatRef::from_row_major_slice(spectra64, n, cols),
+                    faer::MatRef::from_row_major_slice(&c_t, cols, rows),
+                    1.0,
+                    faer::Par::Seq,
+                );
+                for (((value, p), s), predicted) in out
+                    .iter_mut()
+                    .zip(p.chunks_exact(rows))
+                    .zip(s.chunks_exact(cols))
+                    .zip(predicted.chunks_exact(rows))
+                {
+                    if s.iter().any(|v| !v.is_finite()) {
                         continue;
                     }
-                    let predicted: f64 = row.iter().zip(s).map(|(a, &b)| a * b as f64).sum();
-                    sum += ((p[r] as f64 - predicted) * white[r]).powi(2);
-                    count += 1;
+                    let (mut sum, mut count) = (0.0f64, 0usize);
+                    for ((&p, &predicted), &white) in p.iter().zip(predicted).zip(&white) {
+                        if p.is_finite() {
+                            sum += ((p as f64 - predicted) * white).powi(2);
+                            count += 1;
+                        }
+                    }
+                    if count > 0 {
+                        *value = (sum / count as f64).sqrt() as f32;
+                    }
                 }
-                if count > 0 {
-                    *value = (sum / count as f64).sqrt() as f32;
-                }
-            }
-        });
+            },
+        );
     Ok(residuals)
 }
 
