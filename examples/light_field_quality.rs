@@ -70,6 +70,7 @@ fn main() -> anyhow::Result<()> {
                             noise_scale,
                             clusters,
                             propagation_rounds: rounds,
+                            ..defaults
                         }),
                     )
                 }

@@ -670,6 +670,13 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = ScenePriorSettings::default().propagation_rounds as u32,
           value_parser = clap::value_parser!(u32).range(0..=8))]
     pub scene_prior_rounds: u32,
+    /// Scene prior: pixels whose residual exceeds K times the median of the completely
+    /// measured pixels' keep only their own camera's measurements, and the prior estimates
+    /// them from those (a wrong match gathers other surfaces' light); 0 keeps every
+    /// measurement.
+    #[arg(long, value_name = "K", default_value_t = ScenePriorSettings::default().inconsistency_factor,
+          value_parser = parse_non_negative)]
+    pub scene_prior_inconsistency: f64,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

@@ -126,6 +126,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             noise_scale: args.scene_prior_noise,
             clusters: args.scene_prior_clusters as usize,
             propagation_rounds: args.scene_prior_rounds as usize,
+            inconsistency_factor: args.scene_prior_inconsistency,
         }),
         matching_image: match args.matching_image {
             MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,

@@ -33,8 +33,8 @@ pub use probe_plot::{plot_probe, plot_series, Probe};
 use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
 use crate::refine::{
-    confidence_weights, measurement_residuals, refine_view, GuidedRefinement, ScenePrior,
-    ScenePriorReport, ScenePriorSettings,
+    confidence_weights, keep_own_where_inconsistent, measurement_residuals, refine_view,
+    GuidedRefinement, ScenePrior, ScenePriorReport, ScenePriorSettings,
 };
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, gather_measurements,
@@ -327,7 +327,8 @@ pub fn reconstruct(
     let mut reconstructed = Vec::with_capacity(requested.len());
     for (k, &v) in requested.iter().enumerate() {
         let start = Instant::now();
-        let (measurements, visibility) = gather_measurements(v, &views, &disparities, &geometry)?;
+        let (mut measurements, visibility) =
+            gather_measurements(v, &views, &disparities, &geometry)?;
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();
@@ -355,14 +356,34 @@ pub fn reconstruct(
             let mut residuals =
                 measurement_residuals(sensing.values(), sensing.rows(), &measurements, &spectra)?;
             let prior_report = match &settings.scene_prior {
-                Some(prior_settings) => ScenePrior::fill_view(
-                    sensing.values(),
-                    sensing.rows(),
-                    &measurements,
-                    &mut spectra,
-                    &mut residuals,
-                    prior_settings,
-                )?,
+                Some(prior_settings) => {
+                    let inconsistent = if prior_settings.inconsistency_factor > 0.0 {
+                        keep_own_where_inconsistent(
+                            sensing.values(),
+                            sensing.rows(),
+                            first_rows[v]..first_rows[v] + views[v].channels,
+                            &mut measurements,
+                            &mut spectra,
+                            &mut residuals,
+                            prior_settings.inconsistency_factor,
+                            (solved.clone(), &options),
+                        )?
+                    } else {
+                        0
+                    };
+                    ScenePrior::fill_view(
+                        sensing.values(),
+                        sensing.rows(),
+                        &measurements,
+                        &mut spectra,
+                        &mut residuals,
+                        prior_settings,
+                    )?
+                    .map(|report| ScenePriorReport {
+                        inconsistent_pixels: inconsistent,
+                        ..report
+                    })
+                }
                 None => None,
             };
             let (weights, median) = match confidence {
