@@ -659,7 +659,7 @@ pub struct ReconstructArgs {
           value_parser = parse_positive)]
     pub scene_prior_noise: f64,
     /// Scene prior: clusters of the complete pixels' spectra per k-means run (the prior is
-    /// a mixture of Gaussians over 4 runs); 1 gives one Gaussian, the scene's mean and
+    /// a mixture of Gaussians over 2 runs); 1 gives one Gaussian, the scene's mean and
     /// covariance.
     #[arg(long, default_value_t = ScenePriorSettings::default().clusters as u32,
           value_parser = clap::value_parser!(u32).range(1..=1024))]

@@ -55,34 +55,33 @@ impl FeatureProjection {
         let total = k * c;
         let scale = 1.0 / (k as f64).sqrt();
         let sampled: Vec<usize> = (0..pixels).step_by(FIT_STRIDE).collect();
-        let mut moment = Mat::<f64>::zeros(total, total);
-        let mut concatenated = vec![0f64; total];
-        for &p in &sampled {
-            for (j, map) in maps.iter().enumerate() {
-                for (slot, &v) in concatenated[j * c..][..c]
-                    .iter_mut()
-                    .zip(&map.data[p * c..][..c])
-                {
-                    *slot = v as f64 * scale;
+        // The second moment of the concatenated features, Xᵀ X: one product per chunk of
+        // samples, summed over chunks.
+        let symmetric = sampled
+            .par_chunks(CHUNK_PIXELS)
+            .map(|chunk| {
+                let mut concatenated = vec![0f64; chunk.len() * total];
+                for (row, &p) in concatenated.chunks_exact_mut(total).zip(chunk) {
+                    for (j, map) in maps.iter().enumerate() {
+                        for (slot, &v) in row[j * c..][..c].iter_mut().zip(&map.data[p * c..][..c])
+                        {
+                            *slot = v as f64 * scale;
+                        }
+                    }
                 }
-            }
-            for a in 0..total {
-                let va = concatenated[a];
-                if va == 0.0 {
-                    continue;
-                }
-                for b in 0..=a {
-                    moment[(a, b)] += va * concatenated[b];
-                }
-            }
-        }
-        let symmetric = Mat::<f64>::from_fn(total, total, |a, b| {
-            if b <= a {
-                moment[(a, b)]
-            } else {
-                moment[(b, a)]
-            }
-        });
+                let x = faer::MatRef::from_row_major_slice(&concatenated, chunk.len(), total);
+                let mut moment = Mat::<f64>::zeros(total, total);
+                faer::linalg::matmul::matmul(
+                    moment.as_mut(),
+                    faer::Accum::Replace,
+                    x.transpose(),
+                    x,
+                    1.0,
+                    faer::Par::Seq,
+                );
+                moment
+            })
+            .reduce(|| Mat::<f64>::zeros(total, total), |a, b| a + b);
         let eigen =
             symmetric
                 .self_adjoint_eigen(Side::Lower)
