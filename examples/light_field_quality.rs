@@ -13,9 +13,13 @@
 //! registration runs once per mode), each optionally followed by
 //! `+NOISE_SCALE[@CLUSTERS][^ROUNDS]` to add the scene prior (`+0.5@1`: one Gaussian
 //! instead of the default mixture; `+0.5^0`: no propagation rounds).
+//! `ANAGLYPH_DISPUTED=T` sets the disputed measurements' residual tolerance (default
+//! `DISPUTED_TOLERANCE`; 0: the cameras' maps decide visibility alone).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
-use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
+use anaglyph_core::reconstruct::{
+    reconstruct, ArrayCaptures, PipelineSettings, DISPUTED_TOLERANCE,
+};
 use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
 use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
@@ -46,6 +50,10 @@ fn main() -> anyhow::Result<()> {
     let modes: Vec<String> = match std::env::var("ANAGLYPH_MODES") {
         Ok(list) => list.split(',').map(str::to_string).collect(),
         Err(_) => vec!["truth".into(), "pairwise".into(), "multi-baseline".into()],
+    };
+    let disputed_tolerance = match std::env::var("ANAGLYPH_DISPUTED") {
+        Ok(text) => Some(text.parse::<f64>()?).filter(|&t| t > 0.0),
+        Err(_) => Some(DISPUTED_TOLERANCE),
     };
     type Refinement = (Option<GuidedRefinement>, Option<ScenePriorSettings>);
     let refinements: Vec<Refinement> = std::env::var("ANAGLYPH_REFINEMENTS")
@@ -181,6 +189,7 @@ fn main() -> anyhow::Result<()> {
                 refinement: refinements[0].0,
                 scene_prior: refinements[0].1,
                 matching_image,
+                disputed_tolerance,
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -538,6 +538,13 @@ fn parse_non_negative(text: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_disputed_tolerance(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if (v == 0.0 || v >= 1.0) && v.is_finite() => Ok(v),
+        _ => Err(format!("'{text}' (expected 0, or a finite number >= 1)")),
+    }
+}
+
 fn parse_positive(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
@@ -677,6 +684,13 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "K", default_value_t = ScenePriorSettings::default().inconsistency_factor,
           value_parser = parse_non_negative)]
     pub scene_prior_inconsistency: f64,
+    /// Admit the warped measurements a camera's own disparity map disputes but the view's
+    /// depth order allows (on repetitive surfaces the views' maps pick different periods),
+    /// and keep them where a pixel's residual with them stays within T times its residual
+    /// without them; 0: the cameras' maps decide visibility alone.
+    #[arg(long, value_name = "T", default_value_t = anaglyph_core::reconstruct::DISPUTED_TOLERANCE,
+          value_parser = parse_disputed_tolerance)]
+    pub disputed_tolerance: f64,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

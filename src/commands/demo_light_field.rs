@@ -7,6 +7,7 @@ use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
 use anaglyph_core::io::write_disparity_preview;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
+    DISPUTED_TOLERANCE,
 };
 use anaglyph_core::register::{
     ArrayGeometry, RegistrationMode, RegistrationSettings, DEFAULT_REGISTRATION,
@@ -157,6 +158,7 @@ pub fn run_presets(
             refinement: Some(Default::default()),
             scene_prior: Some(Default::default()),
             matching_image: Default::default(),
+            disputed_tolerance: Some(DISPUTED_TOLERANCE),
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

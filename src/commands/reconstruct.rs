@@ -132,6 +132,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
             MatchingImageChoice::Luminance => MatchingImage::Luminance,
         },
+        disputed_tolerance: (args.disputed_tolerance > 0.0).then_some(args.disputed_tolerance),
     };
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
@@ -168,6 +169,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "lambda": rig.file.reconstruction.lambda,
         "refinement": settings.refinement,
         "scene_prior": settings.scene_prior,
+        "disputed_tolerance": settings.disputed_tolerance,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
     });

@@ -61,6 +61,7 @@ fn settings<'a>(
         refinement: None,
         scene_prior: None,
         matching_image: Default::default(),
+        disputed_tolerance: None,
     }
 }
 

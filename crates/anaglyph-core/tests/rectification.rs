@@ -176,6 +176,7 @@ fn true_disparities_hold_again_after_rectification() {
         refinement: None,
         scene_prior: None,
         matching_image: Default::default(),
+        disputed_tolerance: None,
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -244,6 +245,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         refinement: None,
         scene_prior: None,
         matching_image: Default::default(),
+        disputed_tolerance: None,
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

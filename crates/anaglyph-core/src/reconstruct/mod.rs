@@ -34,13 +34,14 @@ use crate::demux::{demultiplex_as, DemuxOptions, DemuxReport};
 use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
 use crate::refine::{
     confidence_weights, keep_own_where_inconsistent, measurement_residuals, refine_view,
-    GuidedRefinement, ScenePrior, ScenePriorReport, ScenePriorSettings,
+    revert_disputed, DisputedReport, GuidedRefinement, ScenePrior, ScenePriorReport,
+    ScenePriorSettings,
 };
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, gather_measurements,
-    neighbour_agreement, register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage,
-    RegistrationMode, RegistrationSettings, SearchRange, Visibility, COMMON_SIGNALS,
-    LOW_AGREEMENT_WARNING,
+    neighbour_agreement, register_views, Admission, ArrayGeometry, CommonSignal, Gathered,
+    GridImage, MatchingImage, RegistrationMode, RegistrationSettings, SearchRange, Visibility,
+    COMMON_SIGNALS, LOW_AGREEMENT_WARNING,
 };
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
 use crate::stereo::GreyImage;
@@ -88,7 +89,15 @@ pub struct PipelineSettings<'a> {
     /// What multi-baseline registration compares the views by (pairwise registration
     /// always matches luminance).
     pub matching_image: MatchingImage,
+    /// Admit the warped measurements a source camera's map disputes but the view's own
+    /// depth order allows, and keep them where the residual with them stays within this
+    /// factor of the residual without ([`crate::refine::revert_disputed`]); None: the
+    /// source cameras' maps decide visibility alone.
+    pub disputed_tolerance: Option<f64>,
 }
+
+/// The default of [`PipelineSettings::disputed_tolerance`].
+pub const DISPUTED_TOLERANCE: f64 = 2.0;
 
 /// One reconstructed view.
 #[derive(Debug, Clone)]
@@ -112,6 +121,9 @@ pub struct ReconstructedView {
     /// What the scene prior did to the view (None: not applied, or too few complete
     /// pixels to learn it).
     pub scene_prior: Option<ScenePriorReport>,
+    /// How many pixels had disputed measurements and how many dropped them (None: the
+    /// source cameras' maps decided visibility alone).
+    pub disputed: Option<DisputedReport>,
 }
 
 /// The multispectral light field of an array.
@@ -316,26 +328,35 @@ pub fn reconstruct(
         ..settings.demux
     };
     let (mut warp_seconds, mut demux_seconds, mut refine_seconds) = (0.0, 0.0, 0.0);
-    let first_rows: Vec<usize> = views
+    let camera_rows: Vec<std::ops::Range<usize>> = views
         .iter()
         .scan(0, |row, view| {
             let first = *row;
             *row += view.channels;
-            Some(first)
+            Some(first..*row)
         })
         .collect();
     let mut reconstructed = Vec::with_capacity(requested.len());
     for (k, &v) in requested.iter().enumerate() {
         let start = Instant::now();
-        let (mut measurements, visibility) =
-            gather_measurements(v, &views, &disparities, &geometry)?;
+        let admission = match settings.disputed_tolerance {
+            Some(_) => Admission::DepthOrder,
+            None => Admission::SourceMaps,
+        };
+        let Gathered {
+            mut measurements,
+            visibility,
+            disputed,
+        } = gather_measurements(v, &views, &disparities, &geometry, admission)?;
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();
-        // The residuals (for confidence weights) and the scene prior need every knot of
-        // C; the reported bands are cut out afterwards.
+        // The residuals (for the disputed measurements and the confidence weights) and the
+        // scene prior need every knot of C; the reported bands are cut out afterwards.
         let confidence = settings.refinement.and_then(|r| r.confidence_scale);
-        let full_knots = confidence.is_some() || settings.scene_prior.is_some();
+        let full_knots = confidence.is_some()
+            || settings.scene_prior.is_some()
+            || settings.disputed_tolerance.is_some();
         let solved = if full_knots {
             0..sensing.cols()
         } else {
@@ -349,64 +370,89 @@ pub fn reconstruct(
             solved.clone(),
             &options,
         )?;
+        // The residuals (for the disputed measurements, the confidence weights and the
+        // inconsistent pixels) are computed once and kept up to date by each step.
+        let mut residuals = if full_knots {
+            Some(measurement_residuals(
+                sensing.values(),
+                sensing.rows(),
+                &measurements,
+                &spectra,
+            )?)
+        } else {
+            None
+        };
+        let disputed_report = match (settings.disputed_tolerance, residuals.as_mut()) {
+            (Some(tolerance), Some(residuals)) => Some(revert_disputed(
+                sensing.values(),
+                sensing.rows(),
+                &camera_rows,
+                &disputed,
+                &mut measurements,
+                &mut spectra,
+                residuals,
+                tolerance,
+                (solved.clone(), &options),
+            )?),
+            _ => None,
+        };
         demux_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Demultiplexing, k + 1, requested.len());
-        let (mut reflectance, weights, median_residual, prior_report) = if full_knots {
-            let start = Instant::now();
-            let mut residuals =
-                measurement_residuals(sensing.values(), sensing.rows(), &measurements, &spectra)?;
-            let prior_report = match &settings.scene_prior {
-                Some(prior_settings) => {
-                    let inconsistent = if prior_settings.inconsistency_factor > 0.0 {
-                        keep_own_where_inconsistent(
+        let (mut reflectance, weights, median_residual, prior_report) =
+            if let Some(mut residuals) = residuals {
+                let start = Instant::now();
+                let prior_report = match &settings.scene_prior {
+                    Some(prior_settings) => {
+                        let inconsistent = if prior_settings.inconsistency_factor > 0.0 {
+                            keep_own_where_inconsistent(
+                                sensing.values(),
+                                sensing.rows(),
+                                camera_rows[v].clone(),
+                                &mut measurements,
+                                &mut spectra,
+                                &mut residuals,
+                                prior_settings.inconsistency_factor,
+                                (solved.clone(), &options),
+                            )?
+                        } else {
+                            0
+                        };
+                        ScenePrior::fill_view(
                             sensing.values(),
                             sensing.rows(),
-                            first_rows[v]..first_rows[v] + views[v].channels,
-                            &mut measurements,
+                            &measurements,
                             &mut spectra,
                             &mut residuals,
-                            prior_settings.inconsistency_factor,
-                            (solved.clone(), &options),
+                            prior_settings,
                         )?
-                    } else {
-                        0
-                    };
-                    ScenePrior::fill_view(
-                        sensing.values(),
-                        sensing.rows(),
-                        &measurements,
-                        &mut spectra,
-                        &mut residuals,
-                        prior_settings,
-                    )?
-                    .map(|report| ScenePriorReport {
-                        inconsistent_pixels: inconsistent,
-                        ..report
-                    })
-                }
-                None => None,
+                        .map(|report| ScenePriorReport {
+                            inconsistent_pixels: inconsistent,
+                            ..report
+                        })
+                    }
+                    None => None,
+                };
+                let (weights, median) = match confidence {
+                    Some(scale) => {
+                        let (weights, median) = confidence_weights(&residuals, scale)?;
+                        (Some(weights), Some(median))
+                    }
+                    None => (None, None),
+                };
+                let knots = solved.len();
+                let reflectance: Vec<f32> = spectra
+                    .chunks_exact(knots)
+                    .flat_map(|s| s[output.clone()].iter().copied())
+                    .collect();
+                refine_seconds += start.elapsed().as_secs_f64();
+                (reflectance, weights, median, prior_report)
+            } else {
+                (spectra, None, None, None)
             };
-            let (weights, median) = match confidence {
-                Some(scale) => {
-                    let (weights, median) = confidence_weights(&residuals, scale)?;
-                    (Some(weights), Some(median))
-                }
-                None => (None, None),
-            };
-            let knots = solved.len();
-            let reflectance: Vec<f32> = spectra
-                .chunks_exact(knots)
-                .flat_map(|s| s[output.clone()].iter().copied())
-                .collect();
-            refine_seconds += start.elapsed().as_secs_f64();
-            (reflectance, weights, median, prior_report)
-        } else {
-            (spectra, None, None, None)
-        };
         if let Some(refinement) = settings.refinement {
             let start = Instant::now();
             let white_response: Vec<f64> = (0..views[v].channels)
-                .map(|c| sensing.row(first_rows[v] + c).iter().sum())
+                .map(|c| sensing.row(camera_rows[v].start + c).iter().sum())
                 .collect();
             refine_view(
                 &mut reflectance,
@@ -448,6 +494,7 @@ pub fn reconstruct(
             demux,
             median_residual,
             scene_prior: prior_report,
+            disputed: disputed_report,
         });
     }
     timings.push(("warping".to_string(), warp_seconds));
@@ -584,6 +631,7 @@ pub struct ViewSummary {
     pub unmeasured_pixels: usize,
     pub median_residual: Option<f64>,
     pub scene_prior: Option<ScenePriorReport>,
+    pub disputed: Option<DisputedReport>,
 }
 
 impl ReconstructedView {
@@ -602,6 +650,7 @@ impl ReconstructedView {
             unmeasured_pixels: self.demux.unmeasured_pixels,
             median_residual: self.median_residual,
             scene_prior: self.scene_prior,
+            disputed: self.disputed,
         }
     }
 }

@@ -1,9 +1,11 @@
 //! Guided spectral refinement, the stage after demultiplexing (beyond the paper): each
 //! view's reflectance cube is filtered with that view's own capture as the guide
 //! ([`guided_filter`]). Before it, [`ScenePrior`] re-estimates the pixels that some
-//! cameras do not see from the statistics of those that every camera sees, and before
-//! that, pixels whose warped measurements no spectrum explains keep only their own
-//! capture's ([`keep_own_where_inconsistent`]) for the prior to estimate.
+//! cameras do not see from the statistics of those that every camera sees; before that,
+//! pixels whose warped measurements no spectrum explains keep only their own capture's
+//! ([`keep_own_where_inconsistent`]) for the prior to estimate; and first of all, the
+//! measurements the warp admitted against a source camera's map stay only where they
+//! agree with the rest ([`revert_disputed`]).
 //!
 //! Why: a view's own capture is the one measurement that needs no warping. The other
 //! cameras' measurements reach it through interpolation at fractional disparities and
@@ -21,11 +23,13 @@
 //! capture is saturated keep their demultiplexed value.
 
 mod confidence;
+mod disputed;
 mod guided_filter;
 mod inconsistent;
 mod scene_prior;
 
 pub use confidence::{confidence_weights, measurement_residuals};
+pub use disputed::{revert_disputed, DisputedReport};
 pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
 pub use inconsistent::keep_own_where_inconsistent;
 pub use scene_prior::{ScenePrior, ScenePriorReport, ScenePriorSettings};

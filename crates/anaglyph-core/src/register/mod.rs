@@ -35,7 +35,9 @@ pub use common_signal::{
 pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};
-pub use warp::{gather_measurements, NormalisedView, Visibility, CONSISTENCY_PX};
+pub use warp::{
+    gather_measurements, Admission, Gathered, NormalisedView, Visibility, CONSISTENCY_PX,
+};
 
 use crate::rig::Rig;
 use crate::stereo::{GreyImage, MatchingCost};

@@ -16,6 +16,16 @@
 //! between surfaces of different colour is not flat and stays masked. (An occluder of
 //! uniform colour over that stretch, in front of a textureless point, would pass, and its
 //! value be taken for the hidden point's; with the presets' true maps PSNR did not move.)
+//!
+//! With [`Admission::DepthOrder`], a tap the source camera's map disputes is still admitted
+//! when the reference's own depth order finds no nearer surface there (no reference pixel
+//! of larger disparity lands on it) and the point the source's map claims to see there
+//! lies inside the reference's frame (else the source may see a nearer surface the
+//! reference cannot: it is masked). Such a measurement is **disputed**: on a repetitive
+//! surface the views' maps pick different periods, each right up to the period, and the
+//! source-map test would mask half the array; but the reference's map may be the wrong
+//! one. [`Gathered::disputed`] marks them, and demultiplexing keeps them only where they
+//! agree with the rest ([`crate::refine::revert_disputed`]).
 
 use super::ArrayGeometry;
 use crate::{Error, Result};
@@ -61,20 +71,45 @@ pub struct NormalisedView {
 /// How much of each camera a view could use.
 #[derive(Debug, Clone, Serialize)]
 pub struct Visibility {
-    /// Per source camera (input order): the fraction of reference pixels it measured.
+    /// Per source camera (input order): the fraction of reference pixels it measured
+    /// (disputed measurements included).
     pub measured_fraction: Vec<f64>,
     /// Fraction of reference pixels measured by every camera.
     pub seen_by_all: f64,
+    /// Per source camera: the fraction of reference pixels whose measurement is disputed
+    /// (all 0 with [`Admission::SourceMaps`]).
+    pub disputed_fraction: Vec<f64>,
 }
 
-/// The measurements of view `reference` from every camera, `pixels × Σ channels` in camera
-/// order (the row order of C), NaN where not visible; `disparities[v]` is view v's map.
+/// Which test a warped measurement must pass to count as visible (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Admission {
+    /// The source camera's own map agrees with the reference's at every tap.
+    SourceMaps,
+    /// The source's map agrees, or the reference's own depth order admits the tap.
+    DepthOrder,
+}
+
+/// A view's warped measurements.
+#[derive(Debug, Clone)]
+pub struct Gathered {
+    /// `pixels × Σ channels` in camera order (the row order of C), NaN where not visible.
+    pub measurements: Vec<f32>,
+    pub visibility: Visibility,
+    /// `pixels × cameras`: the measurement was admitted against the source camera's map
+    /// (empty with [`Admission::SourceMaps`]).
+    pub disputed: Vec<bool>,
+}
+
+/// The measurements of view `reference` from every camera; `disparities[v]` is view v's
+/// map.
 pub fn gather_measurements(
     reference: usize,
     views: &[NormalisedView],
     disparities: &[Vec<f32>],
     geometry: &ArrayGeometry,
-) -> Result<(Vec<f32>, Visibility)> {
+    admission: Admission,
+) -> Result<Gathered> {
     let Some(me) = views.get(reference) else {
         return Err(Error::invalid("warping", format!("no view {reference}")));
     };
@@ -110,12 +145,33 @@ pub fn gather_measurements(
         .collect();
     let own = &disparities[reference];
     let textureless = textureless_pixels(me);
+    let cameras = views.len();
+    let depth_order = admission == Admission::DepthOrder;
+    let nearest: Vec<Vec<f32>> = shifts
+        .iter()
+        .enumerate()
+        .map(|(v, &s)| {
+            if depth_order && v != reference {
+                nearest_of(own, w, h, s)
+            } else {
+                Vec::new()
+            }
+        })
+        .collect();
     let mut measurements = crate::io::zeroed_large::<f32>(w * h * rows);
+    let mut disputed = vec![false; if depth_order { w * h * cameras } else { 0 }];
+    let mut disputed_rows: Vec<&mut [bool]> = if depth_order {
+        disputed.chunks_mut(w * cameras).collect()
+    } else {
+        (0..h).map(|_| <&mut [bool]>::default()).collect()
+    };
     let counts: Vec<Vec<usize>> = measurements
         .par_chunks_mut(w * rows)
+        .zip(disputed_rows.par_iter_mut())
         .enumerate()
-        .map(|(y, out_row)| {
-            let mut seen = vec![0usize; views.len() + 1];
+        .map(|(y, (out_row, disputed_row))| {
+            // Per camera: measured, disputed; then the pixels every camera measured.
+            let mut seen = vec![0usize; 2 * cameras + 1];
             for x in 0..w {
                 let i = y * w + x;
                 let out = &mut out_row[x * rows..][..rows];
@@ -136,67 +192,103 @@ pub fn gather_measurements(
                         view,
                         disparity: &disparities[v],
                         shift: shifts[v],
+                        nearest: &nearest[v],
                     };
-                    let ok = d.is_finite() && warp_one(&source, (x, y), d, textureless[i], dst);
-                    if !ok {
+                    let admitted = if d.is_finite() {
+                        warp_one(&source, (x, y), d, textureless[i], dst)
+                    } else {
+                        Admitted::No
+                    };
+                    if admitted == Admitted::No {
                         dst.fill(f32::NAN);
                     }
+                    if admitted == Admitted::Disputed {
+                        disputed_row[x * cameras + v] = true;
+                        seen[cameras + v] += 1;
+                    }
+                    let ok = admitted != Admitted::No;
                     seen[v] += usize::from(ok);
                     all &= ok;
                 }
-                seen[views.len()] += usize::from(all);
+                seen[2 * cameras] += usize::from(all);
             }
             seen
         })
         .collect();
+    drop(disputed_rows);
     let pixels = (w * h).max(1) as f64;
     let total = |v: usize| counts.iter().map(|c| c[v]).sum::<usize>() as f64 / pixels;
-    Ok((
+    Ok(Gathered {
         measurements,
-        Visibility {
-            measured_fraction: (0..views.len()).map(total).collect(),
-            seen_by_all: total(views.len()),
+        visibility: Visibility {
+            measured_fraction: (0..cameras).map(total).collect(),
+            seen_by_all: total(2 * cameras),
+            disputed_fraction: (cameras..2 * cameras).map(total).collect(),
         },
-    ))
+        disputed,
+    })
 }
 
-/// A camera as the reference sees it: its capture, its own disparity map and the shift of a
-/// point per unit disparity.
+/// A camera as the reference sees it: its capture, its own disparity map, the shift of a
+/// point per unit disparity and the reference's depth order in its frame (empty: not
+/// used).
 #[derive(Clone, Copy)]
 struct Source<'a> {
     view: &'a NormalisedView,
     disparity: &'a [f32],
     shift: (f64, f64),
+    nearest: &'a [f32],
+}
+
+/// Whether a warped measurement is visible.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Admitted {
+    No,
+    Yes,
+    /// Against the source camera's map, by the reference's depth order.
+    Disputed,
 }
 
 /// Reads `view` at the warped position of reference pixel (x, y) with disparity d into
-/// `dst`; false if the measurement is not visible or not usable.
+/// `dst`, and says whether it is visible.
 fn warp_one(
     source: &Source<'_>,
     (x, y): (usize, usize),
     d: f32,
     textureless: bool,
     dst: &mut [f32],
-) -> bool {
+) -> Admitted {
     let Source {
         view,
         disparity,
         shift: (sx, sy),
+        nearest,
     } = *source;
     let (w, h, ch) = (view.width, view.height, view.channels);
     let (px, py) = (x as f64 + sx * d as f64, y as f64 + sy * d as f64);
     if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
-        return false;
+        return Admitted::No;
     }
     let taps = bilinear_taps(w, h, px, py);
     // Depth order and consistency at every tap that contributes: interpolating across a
     // depth edge would mix the two surfaces' spectra.
-    let consistent = taps
-        .iter()
-        .all(|&(p, k)| k <= 0.0 || (disparity[p] - d).abs() <= CONSISTENCY_PX);
-    if !(consistent || textureless && flat_between(source, (x, y), d, &taps)) {
-        return false;
-    }
+    let agrees = |p: usize| (disparity[p] - d).abs() <= CONSISTENCY_PX;
+    let admitted = if taps.iter().all(|&(p, k)| k <= 0.0 || agrees(p))
+        || textureless && flat_between(source, (x, y), d, &taps)
+    {
+        Admitted::Yes
+    } else if !nearest.is_empty()
+        && taps.iter().all(|&(p, k)| {
+            k <= 0.0
+                || agrees(p)
+                || nearest[p] <= d + CONSISTENCY_PX
+                    && claimed_inside(p, disparity[p], (w, h), (sx, sy))
+        })
+    {
+        Admitted::Disputed
+    } else {
+        return Admitted::No;
+    };
     for (c, out) in dst.iter_mut().enumerate() {
         let mut value = 0.0;
         for &(p, k) in &taps {
@@ -205,11 +297,52 @@ fn warp_one(
             }
         }
         if !value.is_finite() {
-            return false;
+            return Admitted::No;
         }
         *out = value;
     }
-    true
+    admitted
+}
+
+/// Whether source pixel p's own disparity `ds` puts the point it sees inside the
+/// reference's frame (true where it has none): if not, the source may see a nearer surface
+/// that the reference's depth order cannot know.
+fn claimed_inside(p: usize, ds: f32, (w, h): (usize, usize), (sx, sy): (f64, f64)) -> bool {
+    if !ds.is_finite() {
+        return true;
+    }
+    let (x, y) = (
+        (p % w) as f64 - sx * ds as f64,
+        (p / w) as f64 - sy * ds as f64,
+    );
+    x >= -0.5 && y >= -0.5 && x <= w as f64 - 0.5 && y <= h as f64 - 0.5
+}
+
+/// The reference's own depth order in a source camera's frame: per source pixel, the
+/// largest reference disparity landing there (at the nearest pixel), NaN where none lands
+/// (a NaN never admits a tap).
+fn nearest_of(own: &[f32], w: usize, h: usize, (sx, sy): (f64, f64)) -> Vec<f32> {
+    let mut z = vec![f32::NAN; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let d = own[y * w + x];
+            if !d.is_finite() {
+                continue;
+            }
+            let (px, py) = (
+                (x as f64 + sx * d as f64).round(),
+                (y as f64 + sy * d as f64).round(),
+            );
+            if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+                continue;
+            }
+            let cell = &mut z[py as usize * w + px as usize];
+            if !(*cell >= d) {
+                *cell = d;
+            }
+        }
+    }
+    z
 }
 
 /// Per pixel of `view`: whether it lies on a textureless patch, every pixel of its 3×3
@@ -283,6 +416,7 @@ fn flat_between(
         view,
         disparity,
         shift: (sx, sy),
+        ..
     } = *source;
     let (mut low, mut high) = (d, d);
     for &(p, k) in taps {
@@ -382,8 +516,18 @@ mod tests {
                 data: right_data,
             },
         ];
-        let (m, visibility) =
-            gather_measurements(0, &views, &[left_d.clone(), right_d], &geometry).unwrap();
+        let Gathered {
+            measurements: m,
+            visibility,
+            ..
+        } = gather_measurements(
+            0,
+            &views,
+            &[left_d.clone(), right_d],
+            &geometry,
+            Admission::SourceMaps,
+        )
+        .unwrap();
         let y = 4;
         for x in 0..w {
             let got = m[(y * w + x) * 2 + 1];
@@ -424,8 +568,19 @@ mod tests {
                 data,
             })
             .collect();
-        let (m, _) = gather_measurements(0, &views, &[left_d, right_d], &geometry).unwrap();
-        m.chunks_exact(2).map(|pair| pair[1]).collect()
+        let gathered = gather_measurements(
+            0,
+            &views,
+            &[left_d, right_d],
+            &geometry,
+            Admission::SourceMaps,
+        )
+        .unwrap();
+        gathered
+            .measurements
+            .chunks_exact(2)
+            .map(|pair| pair[1])
+            .collect()
     }
 
     #[test]
@@ -446,5 +601,85 @@ mod tests {
                 assert_eq!(v.is_nan(), on_the_wrong_stretch(x), "x {x}: {v}");
             }
         }
+    }
+
+    /// A row of two cameras on a plane at disparity 2 whose texture repeats every 4 px,
+    /// and a nearer object (disparity 10) beyond the reference's right edge that the right
+    /// camera sees at its own right edge. Returns the two cameras' views and maps, the
+    /// right map a period (4 px) off on the plane.
+    fn periodic_plane_and_a_hidden_object() -> (Vec<NormalisedView>, Vec<Vec<f32>>) {
+        let w = 40usize;
+        let texture = |x_ref: f32| 0.3 + 0.2 * (std::f32::consts::FRAC_PI_2 * x_ref).sin();
+        let object = |x: usize| x >= w - 6; // right camera pixels 34..40 show the object
+        let right: Vec<f32> = (0..w)
+            .map(|x| {
+                if object(x) {
+                    0.9
+                } else {
+                    texture(x as f32 + 2.0)
+                }
+            })
+            .collect();
+        let views = vec![
+            NormalisedView {
+                row: 0,
+                col: 0,
+                width: w,
+                height: 1,
+                channels: 1,
+                data: (0..w).map(|x| texture(x as f32)).collect(),
+            },
+            NormalisedView {
+                row: 0,
+                col: 1,
+                width: w,
+                height: 1,
+                channels: 1,
+                data: right,
+            },
+        ];
+        let right_d = (0..w).map(|x| if object(x) { 10.0 } else { 6.0 }).collect();
+        (views, vec![vec![2.0; w], right_d])
+    }
+
+    #[test]
+    fn the_depth_order_admits_a_period_off_map_as_disputed_but_not_a_hidden_occluder() {
+        let (views, maps) = periodic_plane_and_a_hidden_object();
+        let w = views[0].width;
+        let geometry = ArrayGeometry {
+            rows: 1,
+            cols: 2,
+            baseline_ratio: 1.0,
+        };
+        let strict =
+            gather_measurements(0, &views, &maps, &geometry, Admission::SourceMaps).unwrap();
+        assert!(strict.disputed.is_empty());
+        assert_eq!(strict.visibility.disputed_fraction, vec![0.0, 0.0]);
+        assert!(
+            strict.measurements.chunks_exact(2).all(|m| m[1].is_nan()),
+            "the right map disagrees everywhere"
+        );
+        let gathered =
+            gather_measurements(0, &views, &maps, &geometry, Admission::DepthOrder).unwrap();
+        for x in 0..w {
+            let got = gathered.measurements[x * 2 + 1];
+            // x − 2 outside the right frame, or on the object (right pixels 34..40).
+            let masked = x < 2 || x - 2 >= w - 6;
+            if masked {
+                assert!(got.is_nan(), "x {x}: {got}");
+                assert!(!gathered.disputed[x * 2 + 1], "x {x}");
+            } else {
+                assert!(
+                    (got - views[0].data[x]).abs() < 1e-6,
+                    "x {x}: {got} against {}",
+                    views[0].data[x]
+                );
+                assert!(gathered.disputed[x * 2 + 1], "x {x}");
+            }
+            assert!(!gathered.disputed[x * 2], "the reference's own capture");
+        }
+        let admitted = (2..w - 4).count() as f64 / w as f64;
+        assert!((gathered.visibility.disputed_fraction[1] - admitted).abs() < 1e-9);
+        assert!((gathered.visibility.measured_fraction[1] - admitted).abs() < 1e-9);
     }
 }
