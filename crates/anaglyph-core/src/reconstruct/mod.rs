@@ -5,8 +5,11 @@
 //! captures + white boards -> rectify (when the cameras carry calibrations)
 //!   -> calibrate (C's units, saturation masked)
 //!   -> register (the search range from a coarse pass when automatic; a disparity map per
-//!      view) -> warp every capture to each requested view
+//!      view) -> warp every capture to each requested view (a measurement that a
+//!      source camera's map disputes but the view's depth order allows is disputed)
 //!   -> demultiplex (masked Eq. 6 with the out-of-band-aware C) -> reflectance cube per view
+//!   -> disputed measurements kept where they agree with the rest
+//!   -> inconsistent pixels keep only their own capture's measurements
 //!   -> scene prior (pixels some camera misses, from the spectra of those all cameras see,
 //!      then of those at least half the camera channels see)
 //!   -> refine (guided by the view's own capture, when enabled)
