@@ -584,7 +584,7 @@ fn parse_probes(text: &str) -> Result<Probes, String> {
                 .map_err(|_| format!("'{v}' is not a pixel coordinate"))
         })
         .collect::<Result<_, _>>()?;
-    if values.is_empty() || values.len() % 2 != 0 {
+    if values.is_empty() || !values.len().is_multiple_of(2) {
         return Err("expected x,y pairs: x,y[,x,y...]".into());
     }
     Ok(Probes(

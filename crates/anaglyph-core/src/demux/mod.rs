@@ -339,7 +339,7 @@ fn validate<I: Sample>(
     output: &Range<usize>,
     options: &DemuxOptions,
 ) -> Result<(usize, bool)> {
-    if rows == 0 || rows > MAX_MEASUREMENTS || c.len() % rows != 0 || c.is_empty() {
+    if rows == 0 || rows > MAX_MEASUREMENTS || !c.len().is_multiple_of(rows) || c.is_empty() {
         return Err(Error::invalid(
             "sensing matrix",
             format!(
@@ -355,7 +355,7 @@ fn validate<I: Sample>(
             format!("holds {v} (NaN/Inf not allowed)"),
         ));
     }
-    if measurements.len() % rows != 0 {
+    if !measurements.len().is_multiple_of(rows) {
         return Err(Error::Shape {
             op: "demultiplex measurements".into(),
             got: vec![measurements.len()],

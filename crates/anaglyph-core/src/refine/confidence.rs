@@ -22,7 +22,7 @@ pub fn measurement_residuals(
     measurements: &[f32],
     spectra: &[f32],
 ) -> Result<Vec<f32>> {
-    if rows == 0 || c.len() % rows != 0 || measurements.len() % rows != 0 {
+    if rows == 0 || !c.len().is_multiple_of(rows) || !measurements.len().is_multiple_of(rows) {
         return Err(Error::Shape {
             op: "residuals: C and measurements against the rows of C".into(),
             got: vec![c.len(), measurements.len()],

@@ -358,7 +358,7 @@ impl ScenePrior {
         residuals: &mut Vec<f32>,
         settings: &ScenePriorSettings,
     ) -> Result<Option<ScenePriorReport>> {
-        if rows == 0 || c.len() % rows != 0 {
+        if rows == 0 || !c.len().is_multiple_of(rows) {
             return Err(Error::Shape {
                 op: "scene prior: C against rows".into(),
                 got: vec![c.len()],
@@ -1004,7 +1004,7 @@ fn nearest_centre(point: &[f64], centres: &[Vec<f64>]) -> usize {
 }
 
 fn check_shapes(rows: usize, knots: usize, measurements: &[f32], spectra: &[f32]) -> Result<()> {
-    if rows == 0 || knots == 0 || measurements.len() % rows != 0 {
+    if rows == 0 || knots == 0 || !measurements.len().is_multiple_of(rows) {
         return Err(Error::Shape {
             op: "scene prior: measurements against rows".into(),
             got: vec![measurements.len()],
