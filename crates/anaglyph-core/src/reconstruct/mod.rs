@@ -330,7 +330,8 @@ pub fn reconstruct(
         lambda: rig.file.reconstruction.lambda,
         ..settings.demux
     };
-    let (mut warp_seconds, mut demux_seconds, mut refine_seconds) = (0.0, 0.0, 0.0);
+    let (mut warp_seconds, mut demux_seconds) = (0.0, 0.0);
+    let (mut prior_seconds, mut refine_seconds) = (0.0, 0.0);
     let camera_rows: Vec<std::ops::Range<usize>> = views
         .iter()
         .scan(0, |row, view| {
@@ -435,6 +436,8 @@ pub fn reconstruct(
                     }
                     None => None,
                 };
+                prior_seconds += start.elapsed().as_secs_f64();
+                let start = Instant::now();
                 let (weights, median) = match confidence {
                     Some(scale) => {
                         let (weights, median) = confidence_weights(&residuals, scale)?;
@@ -502,8 +505,10 @@ pub fn reconstruct(
     }
     timings.push(("warping".to_string(), warp_seconds));
     timings.push(("demultiplexing".to_string(), demux_seconds));
-    // The scene prior's time counts as refinement, with or without the guided filter.
-    if settings.refinement.is_some() || settings.scene_prior.is_some() {
+    if settings.scene_prior.is_some() {
+        timings.push(("scene prior".to_string(), prior_seconds));
+    }
+    if settings.refinement.is_some() {
         timings.push(("refinement".to_string(), refine_seconds));
     }
     Ok(LightField {
