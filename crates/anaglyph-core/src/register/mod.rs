@@ -22,6 +22,7 @@
 
 mod agreement;
 mod common_signal;
+mod compact_features;
 mod feature_projection;
 mod multi_baseline;
 mod pairwise;

@@ -22,6 +22,11 @@
 //! whichever of its nearest valid neighbours left, right, above and below has the lowest
 //! multi-view cost at the pixel ([`fill_by_cost`]), and a 5×5 median smooths the result.
 
+use super::compact_features::{
+    dot, dot_widened, widen, CompactFeatures, DotKernel, NeighbourProducts,
+};
+#[cfg(target_arch = "x86_64")]
+use super::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
 use super::feature_projection::FeatureProjection;
 use super::RegistrationSettings;
 use super::{
@@ -34,158 +39,13 @@ use crate::stereo::{
 };
 use crate::{Error, Result};
 use rayon::prelude::*;
+use std::ops::Range;
 use std::time::Instant;
 
 /// Half-arrays: views left of, right of, above and below the reference.
 const HALVES: usize = 4;
 /// Fractional row offsets below this are treated as whole rows (one dot product).
 const WHOLE_ROW: f64 = 1e-6;
-
-/// Learned features stored as bfloat16 (the upper half of each f32, rounded to nearest):
-/// all views' features are held at once, 4.2 GB as f32 for eight 1920×1080 views, half that
-/// as bf16. The cosine of unit 64-d features moves by about 1e-3, well below the cost
-/// differences between disparities.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CompactFeatures {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    pub data: Vec<u16>,
-}
-
-impl From<FeatureMap> for CompactFeatures {
-    fn from(map: FeatureMap) -> Self {
-        let data = map
-            .data
-            .iter()
-            .map(|v| {
-                let bits = v.to_bits();
-                // Round to nearest even on the dropped half.
-                ((bits + 0x7FFF + ((bits >> 16) & 1)) >> 16) as u16
-            })
-            .collect();
-        CompactFeatures {
-            width: map.width,
-            height: map.height,
-            channels: map.channels,
-            data,
-        }
-    }
-}
-
-/// The f32 value of a bfloat16.
-#[inline(always)]
-fn widen(v: u16) -> f32 {
-    f32::from_bits((v as u32) << 16)
-}
-
-/// Dot product of two bf16 vectors with eight independent f32 accumulators (vectorised by
-/// the compiler).
-#[inline(always)]
-fn dot(a: &[u16], b: &[u16]) -> f32 {
-    let mut lanes = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(&p, &q)| widen(p) * widen(q))
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            lanes[i] += widen(x[i]) * widen(y[i]);
-        }
-    }
-    lanes.iter().sum::<f32>() + tail
-}
-
-/// [`dot`] of an f32 vector (a bf16 one widened beforehand) and a bf16 vector: the same
-/// sums in the same order.
-#[inline(always)]
-fn dot_widened(a: &[f32], b: &[u16]) -> f32 {
-    let mut lanes = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(&p, &q)| p * widen(q))
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            lanes[i] += x[i] * widen(y[i]);
-        }
-    }
-    lanes.iter().sum::<f32>() + tail
-}
-
-/// [`dot`] with `vdpbf16ps`: 32 bfloat16 products per instruction, summed into 16 f32
-/// lanes (the products are exact in f32; only the order of the sums differs from [`dot`]).
-/// The length must be a multiple of 32 ([`DotKernel::for_channels`] checks it).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bf16")]
-#[inline]
-fn dot_avx512_bf16(a: &[u16], b: &[u16]) -> f32 {
-    use std::arch::x86_64::{
-        __m512bh, __m512i, _mm512_dpbf16_ps, _mm512_loadu_si512, _mm512_reduce_add_ps,
-        _mm512_setzero_ps,
-    };
-    debug_assert!(a.len() == b.len() && a.len().is_multiple_of(32));
-    let mut sums = _mm512_setzero_ps();
-    for (p, q) in a.chunks_exact(32).zip(b.chunks_exact(32)) {
-        // SAFETY: each chunk holds 32 u16, the 64 bytes an unaligned load reads; a
-        // vector of 32 bf16 has the layout of 32 u16.
-        let (p, q) = unsafe {
-            let p = _mm512_loadu_si512(p.as_ptr().cast::<__m512i>());
-            let q = _mm512_loadu_si512(q.as_ptr().cast::<__m512i>());
-            (
-                std::mem::transmute::<__m512i, __m512bh>(p),
-                std::mem::transmute::<__m512i, __m512bh>(q),
-            )
-        };
-        sums = _mm512_dpbf16_ps(sums, p, q);
-    }
-    _mm512_reduce_add_ps(sums)
-}
-
-/// Which build of the multi-view cost's dot products runs, chosen once per volume.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum DotKernel {
-    /// Baseline x86-64 (or another architecture).
-    Portable,
-    /// AVX2 + FMA on f32 lanes.
-    Avx2,
-    /// AVX-512 BF16 on the stored bfloat16 (features of a multiple of 32 channels).
-    Avx512Bf16,
-}
-
-impl DotKernel {
-    /// The fastest build this CPU runs for features of `channels` channels.
-    fn for_channels(channels: usize) -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if channels.is_multiple_of(32) && crate::cpu::has_avx512_bf16() {
-                return DotKernel::Avx512Bf16;
-            }
-            if crate::cpu::has_avx2_fma() {
-                return DotKernel::Avx2;
-            }
-        }
-        let _ = channels;
-        DotKernel::Portable
-    }
-
-    /// Every build this CPU runs for features of `channels` channels, fastest first.
-    #[cfg(test)]
-    fn available(channels: usize) -> Vec<Self> {
-        let fastest = Self::for_channels(channels);
-        [DotKernel::Avx512Bf16, DotKernel::Avx2, DotKernel::Portable]
-            .into_iter()
-            .skip_while(|&k| k != fastest)
-            .filter(|&k| k != DotKernel::Avx512Bf16 || fastest == DotKernel::Avx512Bf16)
-            .collect()
-    }
-}
 
 /// The half-arrays view `to` belongs to, seen from `from`.
 fn halves_of(from: (usize, usize), to: (usize, usize)) -> [bool; HALVES] {
@@ -225,6 +85,12 @@ pub fn multi_view_cost_volume(
 }
 
 /// [`multi_view_cost_volume`] with the given build of the dot products.
+///
+/// Each task takes [`ROWS_PER_TASK`] reference rows and, disparity by disparity, each of
+/// its rows against every other view, so that the per-half sums of one (row, disparity)
+/// stay in L1 and a view's feature rows, which the next rows and disparities meet again
+/// (a lower view's row y0 serves reference rows y0 − (b_y/b_x)·d for every d), stay in
+/// L2 rather than coming from memory once per reference row.
 fn cost_volume_with(
     kernel: DotKernel,
     features: &[CompactFeatures],
@@ -234,57 +100,73 @@ fn cost_volume_with(
     max_disp: usize,
 ) -> CostVolume {
     let fr = &features[reference];
-    let (w, h) = (fr.width, fr.height);
+    let (w, c) = (fr.width, fr.channels);
     let others = others_of(positions, reference, geometry);
-    let mut volume = CostVolume::new(w, h, max_disp);
-    // Per task: running sums and counts per half-array, laid out [half][d][x] so that the
-    // inner loop over x writes contiguously.
-    let plane = max_disp * w;
+    let members: Vec<Vec<usize>> = others
+        .iter()
+        .map(|(_, _, halves)| (0..HALVES).filter(|&k| halves[k]).collect())
+        .collect();
+    let mut volume = CostVolume::new(w, fr.height, max_disp);
+    if w == 0 || max_disp == 0 {
+        return volume;
+    }
     volume
         .data
-        .par_chunks_mut(w * max_disp)
+        .par_chunks_mut(ROWS_PER_TASK * w * max_disp)
         .enumerate()
         .for_each_init(
-            || {
-                let widened = Vec::with_capacity(w * fr.channels);
-                (
-                    vec![0f32; HALVES * plane],
-                    vec![0u16; HALVES * plane],
-                    widened,
-                )
-            },
-            |(sums, counts, widened), (y, row)| {
-                sums.fill(0.0);
-                counts.fill(0);
-                let job = RowJob {
-                    features,
-                    others: &others,
-                    reference: fr,
-                    y,
-                    max_disp,
-                };
-                match kernel {
-                    // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features
-                    // have a multiple of 32 channels (checked by `for_channels`).
-                    #[cfg(target_arch = "x86_64")]
-                    DotKernel::Avx512Bf16 => unsafe {
-                        accumulate_row_avx512_bf16(&job, sums, counts)
-                    },
-                    // SAFETY: the CPU supports AVX2 and FMA (checked by `for_channels`).
-                    #[cfg(target_arch = "x86_64")]
-                    DotKernel::Avx2 => unsafe { accumulate_row_avx2(&job, sums, counts, widened) },
-                    _ => accumulate_row_widened(&job, sums, counts, widened),
+            // Per thread: running sums and counts of one (row, disparity) per half-array,
+            // laid out [half][x]; the task's reference rows widened to f32 (AVX2 and
+            // portable builds).
+            || (vec![0f32; HALVES * w], vec![0u16; HALVES * w], Vec::new()),
+            |(sums, counts, widened), (block, rows)| {
+                let first = block * ROWS_PER_TASK;
+                let count = rows.len() / (w * max_disp);
+                if kernel != DotKernel::Avx512Bf16 {
+                    widened.clear();
+                    widened.extend(
+                        fr.data[first * w * c..(first + count) * w * c]
+                            .iter()
+                            .map(|&v| widen(v)),
+                    );
                 }
-                for x in 0..w {
-                    for d in 0..max_disp {
-                        let mut best = CostVolume::INVALID;
-                        for k in 0..HALVES {
-                            let j = k * plane + d * w + x;
-                            if counts[j] > 0 {
-                                best = best.min(sums[j] / counts[j] as f32);
-                            }
+                for d in 0..max_disp {
+                    for (i, row) in rows.chunks_exact_mut(w * max_disp).enumerate() {
+                        sums.fill(0.0);
+                        counts.fill(0);
+                        let job = RowJob {
+                            features,
+                            others: &others,
+                            reference: fr,
+                            y: first + i,
+                        };
+                        let widened_row = &widened[..];
+                        let widened_row =
+                            widened_row.get(i * w * c..(i + 1) * w * c).unwrap_or(&[]);
+                        match kernel {
+                            // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
+                            // features have a multiple of 32 channels (`for_channels`).
+                            #[cfg(target_arch = "x86_64")]
+                            DotKernel::Avx512Bf16 => unsafe {
+                                accumulate_avx512_bf16(&job, &members, d, sums, counts)
+                            },
+                            // SAFETY: the CPU supports AVX2 and FMA (`for_channels`).
+                            #[cfg(target_arch = "x86_64")]
+                            DotKernel::Avx2 => unsafe {
+                                accumulate_avx2(&job, &members, d, sums, counts, widened_row)
+                            },
+                            _ => accumulate_widened(&job, &members, d, sums, counts, widened_row),
                         }
-                        row[x * max_disp + d] = best;
+                        for (x, cost) in row.iter_mut().skip(d).step_by(max_disp).enumerate() {
+                            let mut best = CostVolume::INVALID;
+                            for k in 0..HALVES {
+                                let j = k * w + x;
+                                if counts[j] > 0 {
+                                    best = best.min(sums[j] / counts[j] as f32);
+                                }
+                            }
+                            *cost = best;
+                        }
                     }
                 }
             },
@@ -292,106 +174,232 @@ fn cost_volume_with(
     volume
 }
 
+/// Reference rows per task of the multi-view cost volume: on the tabletop at 640×480 the
+/// 8 views' volumes took 8.9 and 10.9 s with 8 rows, 10.9 and 12.6 s with one (runs
+/// alternated on a loaded machine).
+const ROWS_PER_TASK: usize = 8;
+
 /// One row's work: the reference row `y` against every other view.
 struct RowJob<'a> {
     features: &'a [CompactFeatures],
     others: &'a [(usize, (f64, f64), [bool; HALVES])],
     reference: &'a CompactFeatures,
     y: usize,
-    max_disp: usize,
 }
 
-/// [`accumulate_row_widened`] compiled for AVX2 + FMA (the build targets baseline x86-64;
+/// [`accumulate_widened`] compiled for AVX2 + FMA (the build targets baseline x86-64;
 /// 1.5× faster than it at 320×240×64).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn accumulate_row_avx2(
+unsafe fn accumulate_avx2(
     job: &RowJob<'_>,
+    members: &[Vec<usize>],
+    d: usize,
     sums: &mut [f32],
     counts: &mut [u16],
-    reference_row: &mut Vec<f32>,
+    widened_row: &[f32],
 ) {
-    accumulate_row_widened(job, sums, counts, reference_row)
+    accumulate_widened(job, members, d, sums, counts, widened_row)
 }
 
-/// [`accumulate_row`] with [`dot_avx512_bf16`] on the stored reference row: where the
-/// multi-view cost spends its time. On the tabletop at 640×480 (features of 64 channels)
-/// the 8 views' volumes took 8.0–10.2 s against 15.2 s with the AVX2 build.
+/// [`accumulate`] with AVX-512 BF16 on the stored bfloat16, sixteen columns at a time
+/// ([`dots16_avx512_bf16`], the costs added to the sums as vectors), the rest one at a time
+/// ([`dot_avx512_bf16`]). Where the multi-view cost spends its time: on the tabletop at
+/// 640×480 (features of 64 channels) the 8 views' volumes took 8.0–10.2 s one column at
+/// a time and 15.2 s with the AVX2 build.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bf16")]
-fn accumulate_row_avx512_bf16(job: &RowJob<'_>, sums: &mut [f32], counts: &mut [u16]) {
+#[target_feature(enable = "avx512f,avx512bf16,avx2")]
+fn accumulate_avx512_bf16(
+    job: &RowJob<'_>,
+    members: &[Vec<usize>],
+    d: usize,
+    sums: &mut [f32],
+    counts: &mut [u16],
+) {
+    use std::arch::x86_64::{
+        __m256i, _mm256_add_epi16, _mm256_loadu_si256, _mm256_set1_epi16, _mm256_storeu_si256,
+        _mm512_add_ps, _mm512_fmadd_ps, _mm512_fnmadd_ps, _mm512_loadu_ps, _mm512_max_ps,
+        _mm512_min_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_storeu_ps, _mm512_sub_ps,
+    };
     let fr = job.reference;
     let (w, c) = (fr.width, fr.channels);
     let row = &fr.data[job.y * w * c..][..w * c];
-    accumulate_row(job, sums, counts, |x, b| {
-        dot_avx512_bf16(&row[x * c..][..c], b)
+    let (half, one) = (_mm512_set1_ps(0.5), _mm512_set1_ps(1.0));
+    for_each_view_at(job, members, d, |segment| {
+        let mut x = segment.columns.start;
+        while x + 16 <= segment.columns.end {
+            let xs = (x as isize + segment.offset) as usize;
+            let a = &row[x * c..][..16 * c];
+            let mut similarity = dots16_avx512_bf16(a, &segment.row[xs * c..], c);
+            if let Some((below_row, fy)) = segment.below {
+                let below = dots16_avx512_bf16(a, &below_row[xs * c..], c);
+                similarity = _mm512_fmadd_ps(
+                    _mm512_set1_ps(fy),
+                    _mm512_sub_ps(below, similarity),
+                    similarity,
+                );
+            }
+            let cost = _mm512_min_ps(
+                _mm512_max_ps(
+                    _mm512_fnmadd_ps(half, similarity, half),
+                    _mm512_setzero_ps(),
+                ),
+                one,
+            );
+            for &k in segment.members {
+                let j = k * w + x;
+                let (sum, count) = (&mut sums[j..j + 16], &mut counts[j..j + 16]);
+                // SAFETY: `sum` holds 16 f32 and `count` 16 u16, what the unaligned loads
+                // and stores read and write.
+                unsafe {
+                    let total = _mm512_add_ps(_mm512_loadu_ps(sum.as_ptr()), cost);
+                    _mm512_storeu_ps(sum.as_mut_ptr(), total);
+                    let place = count.as_mut_ptr().cast::<__m256i>();
+                    let counted = _mm256_add_epi16(_mm256_loadu_si256(place), _mm256_set1_epi16(1));
+                    _mm256_storeu_si256(place, counted);
+                }
+            }
+            x += 16;
+        }
+        for x in x..segment.columns.end {
+            let xs = (x as isize + segment.offset) as usize;
+            let a = &row[x * c..][..c];
+            add_cost(
+                &segment,
+                x,
+                sums,
+                counts,
+                w,
+                |b| dot_avx512_bf16(a, b),
+                xs * c,
+                c,
+            );
+        }
     });
 }
 
-/// [`accumulate_row`] with [`dot_widened`]: `reference_row` is scratch for the reference
-/// row's features widened to f32 once, not once per view and disparity.
+/// [`accumulate`] with [`dot_widened`] on the reference row widened to f32 beforehand
+/// (`widened_row`), not once per view and disparity.
 #[inline(always)]
-fn accumulate_row_widened(
+fn accumulate_widened(
     job: &RowJob<'_>,
+    members: &[Vec<usize>],
+    d: usize,
     sums: &mut [f32],
     counts: &mut [u16],
-    reference_row: &mut Vec<f32>,
+    widened_row: &[f32],
 ) {
-    let fr = job.reference;
-    let (w, c, y) = (fr.width, fr.channels, job.y);
-    reference_row.clear();
-    reference_row.extend(fr.data[y * w * c..][..w * c].iter().map(|&v| widen(v)));
-    let row = &reference_row[..];
-    accumulate_row(job, sums, counts, |x, b| dot_widened(&row[x * c..][..c], b));
+    let c = job.reference.channels;
+    accumulate(job, members, d, sums, counts, |x, b| {
+        dot_widened(&widened_row[x * c..][..c], b)
+    });
 }
 
-/// Adds the costs of reference row `job.y` against every other view to the per-half sums
-/// and counts (layout `[half][d][x]`). `similarity(x, feature)` is the dot product of
-/// the reference's feature at column x with another view's feature.
+/// Adds the costs of reference row `job.y` at disparity `d` against every other view to
+/// the per-half sums and counts (layout `[half][x]`). `similarity(x, feature)` is the dot
+/// product of the reference's feature at column x with another view's feature.
 #[inline(always)]
-fn accumulate_row(
+fn accumulate(
     job: &RowJob<'_>,
+    members: &[Vec<usize>],
+    d: usize,
     sums: &mut [f32],
     counts: &mut [u16],
     similarity: impl Fn(usize, &[u16]) -> f32,
 ) {
-    let fr = job.reference;
-    let (w, h, c, y, max_disp) = (fr.width, fr.height, fr.channels, job.y, job.max_disp);
-    let plane = max_disp * w;
-    for &(v, (sx, sy), halves) in job.others {
-        let fv = &job.features[v];
-        let members: Vec<usize> = (0..HALVES).filter(|&k| halves[k]).collect();
-        for d in 0..max_disp {
-            let ys = y as f64 + sy * d as f64;
-            if ys < 0.0 || ys > (h - 1) as f64 {
-                continue;
-            }
-            let y0 = ys.floor() as usize;
-            let fy = (ys - y0 as f64) as f32;
-            let two_rows = fy as f64 > WHOLE_ROW && y0 + 1 < h;
-            let offset = (sx * d as f64).round() as isize;
-            let x_lo = (-offset).max(0) as usize;
-            let x_hi = (w as isize - offset.max(0)).max(0) as usize;
-            if x_lo >= x_hi {
-                continue;
-            }
-            let row_b0 = &fv.data[y0 * w * c..][..w * c];
-            let row_b1 = &fv.data[(y0 + usize::from(two_rows)) * w * c..][..w * c];
-            for x in x_lo..x_hi {
-                let xs = (x as isize + offset) as usize;
-                let mut similarity_here = similarity(x, &row_b0[xs * c..][..c]);
-                if two_rows {
-                    let below = similarity(x, &row_b1[xs * c..][..c]);
-                    similarity_here += fy * (below - similarity_here);
-                }
-                let cost = (0.5 - 0.5 * similarity_here).clamp(0.0, 1.0);
-                for &k in &members {
-                    let j = k * plane + d * w + x;
-                    sums[j] += cost;
-                    counts[j] += 1;
-                }
-            }
+    let (w, c) = (job.reference.width, job.reference.channels);
+    for_each_view_at(job, members, d, |segment| {
+        for x in segment.columns.clone() {
+            let xs = (x as isize + segment.offset) as usize;
+            add_cost(
+                &segment,
+                x,
+                sums,
+                counts,
+                w,
+                |b| similarity(x, b),
+                xs * c,
+                c,
+            );
         }
+    });
+}
+
+/// Adds column x's cost in `segment` to the sums and counts (`[half][x]`, rows of `w`) of
+/// its half-arrays; `product` is the dot product of the reference's feature with one of
+/// the view's, whose feature starts at `at` in the segment's rows of `c` channels.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn add_cost(
+    segment: &Segment<'_>,
+    x: usize,
+    sums: &mut [f32],
+    counts: &mut [u16],
+    w: usize,
+    product: impl Fn(&[u16]) -> f32,
+    at: usize,
+    c: usize,
+) {
+    let mut similarity = product(&segment.row[at..][..c]);
+    if let Some((below_row, fy)) = segment.below {
+        let below = product(&below_row[at..][..c]);
+        similarity += fy * (below - similarity);
+    }
+    let cost = (0.5 - 0.5 * similarity).clamp(0.0, 1.0);
+    for &k in segment.members {
+        let j = k * w + x;
+        sums[j] += cost;
+        counts[j] += 1;
+    }
+}
+
+/// The columns of the reference row that one disparity compares with one view.
+struct Segment<'a> {
+    /// The half-arrays the view belongs to.
+    members: &'a [usize],
+    /// Reference column x meets the view's column x + offset.
+    offset: isize,
+    /// The reference columns whose match lies inside the view.
+    columns: Range<usize>,
+    /// The view's features on the row at or above the match.
+    row: &'a [u16],
+    /// Where the match falls between rows: the row below and the fraction towards it.
+    below: Option<(&'a [u16], f32)>,
+}
+
+/// The segment of every other view at disparity `d` for reference row `job.y`, in view
+/// order (the order of the sums); `members[i]` lists the half-arrays of view i.
+#[inline(always)]
+fn for_each_view_at(
+    job: &RowJob<'_>,
+    members: &[Vec<usize>],
+    d: usize,
+    mut visit: impl FnMut(Segment<'_>),
+) {
+    let fr = job.reference;
+    let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
+    for (&(v, (sx, sy), _), members) in job.others.iter().zip(members) {
+        let fv = &job.features[v];
+        let ys = y as f64 + sy * d as f64;
+        if ys < 0.0 || ys > (h - 1) as f64 {
+            continue;
+        }
+        let y0 = ys.floor() as usize;
+        let fy = (ys - y0 as f64) as f32;
+        let two_rows = fy as f64 > WHOLE_ROW && y0 + 1 < h;
+        let offset = (sx * d as f64).round() as isize;
+        let x_lo = (-offset).max(0) as usize;
+        let x_hi = (w as isize - offset.max(0)).max(0) as usize;
+        if x_lo >= x_hi {
+            continue;
+        }
+        visit(Segment {
+            members,
+            offset,
+            columns: x_lo..x_hi,
+            row: &fv.data[y0 * w * c..][..w * c],
+            below: two_rows.then(|| (&fv.data[(y0 + 1) * w * c..][..w * c], fy)),
+        });
     }
 }
 
@@ -403,7 +411,13 @@ const HALF_STEPS: [f64; 4] = [-1.5, -0.5, 0.5, 1.5];
 /// renormalised), then the same half-array rule as the volume. NaN if no half-array sees
 /// the point. `product` is the dot product of two features ([`dot`] or a faster build).
 #[inline(always)]
-fn cost_at(job: &RowJob<'_>, x: usize, d: f64, product: impl Fn(&[u16], &[u16]) -> f32) -> f32 {
+fn cost_at(
+    job: &RowJob<'_>,
+    neighbours: &[NeighbourProducts],
+    x: usize,
+    d: f64,
+    product: impl Fn(&[u16], &[u16]) -> f32,
+) -> f32 {
     let fr = job.reference;
     let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
     let a = &fr.data[(y * w + x) * c..][..c];
@@ -417,29 +431,23 @@ fn cost_at(job: &RowJob<'_>, x: usize, d: f64, product: impl Fn(&[u16], &[u16]) 
         let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
         let fv = &job.features[v].data;
         let feature = |xx: usize, yy: usize| &fv[(yy * w + xx) * c..][..c];
-        let taps = [
-            (x0, y0, (1.0 - fx) * (1.0 - fy)),
-            (x0 + 1, y0, fx * (1.0 - fy)),
-            (x0, y0 + 1, (1.0 - fx) * fy),
-            (x0 + 1, y0 + 1, fx * fy),
+        let k = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
         ];
+        let taps = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
         // The cosine with the interpolated feature: a·Σkᵢfᵢ / |Σkᵢfᵢ|. Without the norm,
         // interpolating similarities between two pixels lowers them off the grid and
         // pulls the fit towards whole disparities.
-        let (mut numerator, mut norm2) = (0.0f32, 0.0f32);
-        for (i, &(xi, yi, ki)) in taps.iter().enumerate() {
-            if ki <= 0.0 {
-                continue;
-            }
-            let fi = feature(xi, yi);
-            numerator += ki * product(a, fi);
-            norm2 += ki * ki * product(fi, fi);
-            for &(xj, yj, kj) in &taps[i + 1..] {
-                if kj > 0.0 {
-                    norm2 += 2.0 * ki * kj * product(fi, feature(xj, yj));
-                }
+        let mut numerator = 0.0f32;
+        for (&ki, &(xi, yi)) in k.iter().zip(&taps) {
+            if ki > 0.0 {
+                numerator += ki * product(a, feature(xi, yi));
             }
         }
+        let norm2 = neighbours[v].interpolated_norm2(x0, y0, k);
         let similarity = if norm2 > 0.0 {
             numerator / norm2.sqrt()
         } else {
@@ -460,21 +468,42 @@ fn cost_at(job: &RowJob<'_>, x: usize, d: f64, product: impl Fn(&[u16], &[u16]) 
 }
 
 /// Every pixel's cost at its whole disparity + [`HALF_STEPS`] (NaN where unknown).
+/// `neighbours` holds every view's [`NeighbourProducts`].
 fn half_step_costs(
     features: &[CompactFeatures],
+    neighbours: &[NeighbourProducts],
     positions: &[(usize, usize)],
     reference: usize,
     geometry: &ArrayGeometry,
     disparity: &[f32],
 ) -> Vec<[f32; 4]> {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    half_step_costs_with(kernel, features, positions, reference, geometry, disparity)
+    half_step_costs_with(
+        kernel, features, neighbours, positions, reference, geometry, disparity,
+    )
+}
+
+/// Every view's [`NeighbourProducts`], with the given build of the dot products.
+fn neighbour_products(kernel: DotKernel, features: &[CompactFeatures]) -> Vec<NeighbourProducts> {
+    features
+        .iter()
+        .map(|view| match kernel {
+            #[cfg(target_arch = "x86_64")]
+            DotKernel::Avx512Bf16 => NeighbourProducts::of(view, |a, b| {
+                // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features
+                // have a multiple of 32 channels (checked by `for_channels`).
+                unsafe { dot_avx512_bf16(a, b) }
+            }),
+            _ => NeighbourProducts::of(view, dot),
+        })
+        .collect()
 }
 
 /// [`half_step_costs`] with the given build of the dot products.
 fn half_step_costs_with(
     kernel: DotKernel,
     features: &[CompactFeatures],
+    neighbours: &[NeighbourProducts],
     positions: &[(usize, usize)],
     reference: usize,
     geometry: &ArrayGeometry,
@@ -490,18 +519,19 @@ fn half_step_costs_with(
             others: &others,
             reference: fr,
             y,
-            max_disp: 0,
         };
         let disparity = &disparity[y * w..(y + 1) * w];
         match kernel {
             // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features have a
             // multiple of 32 channels (checked by `for_channels`).
             #[cfg(target_arch = "x86_64")]
-            DotKernel::Avx512Bf16 => unsafe { half_step_row_avx512_bf16(&job, disparity, row) },
+            DotKernel::Avx512Bf16 => unsafe {
+                half_step_row_avx512_bf16(&job, neighbours, disparity, row)
+            },
             // SAFETY: the CPU supports AVX2 and FMA (checked by `for_channels`).
             #[cfg(target_arch = "x86_64")]
-            DotKernel::Avx2 => unsafe { half_step_row_avx2(&job, disparity, row) },
-            _ => half_step_row(&job, disparity, row, dot),
+            DotKernel::Avx2 => unsafe { half_step_row_avx2(&job, neighbours, disparity, row) },
+            _ => half_step_row(&job, neighbours, disparity, row, dot),
         }
     });
     out
@@ -511,6 +541,7 @@ fn half_step_costs_with(
 #[inline(always)]
 fn half_step_row(
     job: &RowJob<'_>,
+    neighbours: &[NeighbourProducts],
     disparity: &[f32],
     row: &mut [[f32; 4]],
     product: impl Fn(&[u16], &[u16]) -> f32 + Copy,
@@ -522,7 +553,7 @@ fn half_step_row(
         for (slot, offset) in costs.iter_mut().zip(HALF_STEPS) {
             let at = d as f64 + offset;
             if at >= 0.0 {
-                *slot = cost_at(job, x, at, product);
+                *slot = cost_at(job, neighbours, x, at, product);
             }
         }
     }
@@ -535,15 +566,27 @@ fn half_step_row(
 /// The CPU must support AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn half_step_row_avx2(job: &RowJob<'_>, disparity: &[f32], row: &mut [[f32; 4]]) {
-    half_step_row(job, disparity, row, dot)
+unsafe fn half_step_row_avx2(
+    job: &RowJob<'_>,
+    neighbours: &[NeighbourProducts],
+    disparity: &[f32],
+    row: &mut [[f32; 4]],
+) {
+    half_step_row(job, neighbours, disparity, row, dot)
 }
 
 /// [`half_step_row`] with [`dot_avx512_bf16`] (features of a multiple of 32 channels).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
-fn half_step_row_avx512_bf16(job: &RowJob<'_>, disparity: &[f32], row: &mut [[f32; 4]]) {
-    half_step_row(job, disparity, row, |a, b| dot_avx512_bf16(a, b))
+fn half_step_row_avx512_bf16(
+    job: &RowJob<'_>,
+    neighbours: &[NeighbourProducts],
+    disparity: &[f32],
+    row: &mut [[f32; 4]],
+) {
+    half_step_row(job, neighbours, disparity, row, |a, b| {
+        dot_avx512_bf16(a, b)
+    })
 }
 
 /// [`crate::stereo::windowed_subpixel`] on a half-pixel grid: the window sums of the costs at k − 1,
@@ -681,6 +724,8 @@ pub fn multi_baseline_disparities(
             Ok(compact)
         })
         .collect::<Result<_>>()?;
+    // The half steps' interpolated features take their norms from these.
+    let neighbours = neighbour_products(DotKernel::for_channels(features[0].channels), &features);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let flat = GreyImage {
         width: w,
@@ -703,7 +748,7 @@ pub fn multi_baseline_disparities(
             )),
             None => winner_take_all(&volume),
         };
-        let half = half_step_costs(&features, &positions, i, geometry, &disparity);
+        let half = half_step_costs(&features, &neighbours, &positions, i, geometry, &disparity);
         raw.push(half_step_subpixel(
             &volume,
             &half,
@@ -726,15 +771,14 @@ pub fn multi_baseline_disparities(
                     others: &others,
                     reference: &features[i],
                     y,
-                    max_disp: 0,
                 };
-                cost_at(&job, x, d as f64, dot)
+                cost_at(&job, &neighbours, x, d as f64, dot)
             };
             fill_by_cost(&mut checked, w, h, &cost);
             smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
         })
         .collect();
-    drop(features);
+    drop((features, neighbours));
     timings.push((
         "cross-check, fill, median".to_string(),
         clock.elapsed().as_secs_f64(),
@@ -836,7 +880,8 @@ mod tests {
         let positions = [(0, 0), (0, 1)];
         let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, 8);
         let whole = winner_take_all(&volume);
-        let half = half_step_costs(&features, &positions, 0, &geometry, &whole);
+        let neighbours = neighbour_products(DotKernel::Portable, &features);
+        let half = half_step_costs(&features, &neighbours, &positions, 0, &geometry, &whole);
         let fine = half_step_subpixel(&volume, &half, &whole, 3);
         let coarse = crate::stereo::windowed_subpixel(&volume, &whole, 3);
         let (x, y) = (20, 8);
@@ -902,6 +947,7 @@ mod tests {
         let portable_half = half_step_costs_with(
             DotKernel::Portable,
             &features,
+            &neighbour_products(DotKernel::Portable, &features),
             &positions,
             reference,
             &geometry,
@@ -917,7 +963,13 @@ mod tests {
                 .fold(0f32, f32::max);
             assert!(worst < 1e-5, "{kernel:?}: volume off by {worst}");
             let half = half_step_costs_with(
-                kernel, &features, &positions, reference, &geometry, &disparity,
+                kernel,
+                &features,
+                &neighbour_products(kernel, &features),
+                &positions,
+                reference,
+                &geometry,
+                &disparity,
             );
             let worst = half
                 .iter()
