@@ -110,17 +110,18 @@ impl NeighbourProducts {
             self.at(x0, y0 + 1),
             self.at(x0 + 1, y0 + 1),
         );
-        k[0] * k[0] * p00[Self::OWN]
-            + k[1] * k[1] * p10[Self::OWN]
-            + k[2] * k[2] * p01[Self::OWN]
-            + k[3] * k[3] * p11[Self::OWN]
-            + 2.0
-                * (k[0] * k[1] * p00[Self::RIGHT]
-                    + k[0] * k[2] * p00[Self::LOWER]
-                    + k[0] * k[3] * p00[Self::LOWER_RIGHT]
-                    + k[1] * k[2] * p10[Self::LOWER_LEFT]
-                    + k[1] * k[3] * p10[Self::LOWER]
-                    + k[2] * k[3] * p01[Self::RIGHT])
+        // Summed tap by tap, each tap's own product before its products with the later
+        // taps: the order (and so the rounding) of the sums of the ten dot products.
+        let mut norm2 = k[0] * k[0] * p00[Self::OWN];
+        norm2 += 2.0 * k[0] * k[1] * p00[Self::RIGHT];
+        norm2 += 2.0 * k[0] * k[2] * p00[Self::LOWER];
+        norm2 += 2.0 * k[0] * k[3] * p00[Self::LOWER_RIGHT];
+        norm2 += k[1] * k[1] * p10[Self::OWN];
+        norm2 += 2.0 * k[1] * k[2] * p10[Self::LOWER_LEFT];
+        norm2 += 2.0 * k[1] * k[3] * p10[Self::LOWER];
+        norm2 += k[2] * k[2] * p01[Self::OWN];
+        norm2 += 2.0 * k[2] * k[3] * p01[Self::RIGHT];
+        norm2 + k[3] * k[3] * p11[Self::OWN]
     }
 }
 

@@ -725,7 +725,8 @@ pub fn multi_baseline_disparities(
         })
         .collect::<Result<_>>()?;
     // The half steps' interpolated features take their norms from these.
-    let neighbours = neighbour_products(DotKernel::for_channels(features[0].channels), &features);
+    let kernel = DotKernel::for_channels(features[0].channels);
+    let neighbours = neighbour_products(kernel, &features);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let flat = GreyImage {
         width: w,
@@ -772,7 +773,16 @@ pub fn multi_baseline_disparities(
                     reference: &features[i],
                     y,
                 };
-                cost_at(&job, &neighbours, x, d as f64, dot)
+                match kernel {
+                    // The dot products of the neighbours' products, for the same rounding.
+                    #[cfg(target_arch = "x86_64")]
+                    DotKernel::Avx512Bf16 => cost_at(&job, &neighbours, x, d as f64, |a, b| {
+                        // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
+                        // features have a multiple of 32 channels (`for_channels`).
+                        unsafe { dot_avx512_bf16(a, b) }
+                    }),
+                    _ => cost_at(&job, &neighbours, x, d as f64, dot),
+                }
             };
             fill_by_cost(&mut checked, w, h, &cost);
             smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
