@@ -86,11 +86,11 @@ pub fn multi_view_cost_volume(
 
 /// [`multi_view_cost_volume`] with the given build of the dot products.
 ///
-/// Each task takes [`ROWS_PER_TASK`] reference rows and, disparity by disparity, each of
-/// its rows against every other view, so that the per-half sums of one (row, disparity)
-/// stay in L1 and a view's feature rows, which the next rows and disparities meet again
-/// (a lower view's row y0 serves reference rows y0 − (b_y/b_x)·d for every d), stay in
-/// L2 rather than coming from memory once per reference row.
+/// Each task takes a few reference rows ([`rows_per_task`]) and, disparity by disparity,
+/// each of its rows against every other view, so that the per-half sums of one (row,
+/// disparity) stay in L1, and the views' feature rows that the task's next rows and
+/// disparities meet again (a lower view's row y0 serves reference rows y0 − (b_y/b_x)·d
+/// for every d) may still be in cache.
 fn cost_volume_with(
     kernel: DotKernel,
     features: &[CompactFeatures],
@@ -110,9 +110,10 @@ fn cost_volume_with(
     if w == 0 || max_disp == 0 {
         return volume;
     }
+    let rows_per_task = rows_per_task(w * c * std::mem::size_of::<u16>());
     volume
         .data
-        .par_chunks_mut(ROWS_PER_TASK * w * max_disp)
+        .par_chunks_mut(rows_per_task * w * max_disp)
         .enumerate()
         .for_each_init(
             // Per thread: running sums and counts of one (row, disparity) per half-array,
@@ -120,7 +121,7 @@ fn cost_volume_with(
             // portable builds).
             || (vec![0f32; HALVES * w], vec![0u16; HALVES * w], Vec::new()),
             |(sums, counts, widened), (block, rows)| {
-                let first = block * ROWS_PER_TASK;
+                let first = block * rows_per_task;
                 let count = rows.len() / (w * max_disp);
                 if kernel != DotKernel::Avx512Bf16 {
                     widened.clear();
@@ -174,10 +175,24 @@ fn cost_volume_with(
     volume
 }
 
-/// Reference rows per task of the multi-view cost volume: on the tabletop at 640×480 the
-/// 8 views' volumes took 8.9 and 10.9 s with 8 rows, 10.9 and 12.6 s with one (runs
-/// alternated on a loaded machine).
+/// Reference rows per task of the multi-view cost volume, for feature rows of `row_bytes`:
+/// [`ROWS_PER_TASK`] up to [`BLOCKED_ROW_BYTES`], else one. On the tabletop the 8 views'
+/// volumes took, at 640×480 (80 KB rows), 8.9 and 10.9 s with 8 rows against 10.9 and
+/// 12.6 s with one (runs alternated on a loaded machine); at 1920×1080 (240 KB rows),
+/// 96.4 s with 8 rows against 78.8 s with one: there the rows of eight reference rows'
+/// views no longer stay in cache from one disparity to the next.
+fn rows_per_task(row_bytes: usize) -> usize {
+    if row_bytes <= BLOCKED_ROW_BYTES {
+        ROWS_PER_TASK
+    } else {
+        1
+    }
+}
+
+/// See [`rows_per_task`].
 const ROWS_PER_TASK: usize = 8;
+/// See [`rows_per_task`]: 640 pixels of 64 bfloat16 channels.
+const BLOCKED_ROW_BYTES: usize = 640 * 64 * 2;
 
 /// One row's work: the reference row `y` against every other view.
 struct RowJob<'a> {
