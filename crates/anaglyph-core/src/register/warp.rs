@@ -2,9 +2,10 @@
 //! cameras along its disparity map, the input of the per-pixel demultiplexing.
 //!
 //! A camera's measurement of a reference pixel with disparity d is read at
-//! `(x, y) + d · shift` by bilinear interpolation. It is **visible** only if that camera's
-//! own disparity map agrees within [`CONSISTENCY_PX`] at every contributing tap, so that no
-//! value is interpolated across a depth edge (depth order: a nearer surface
+//! `(x, y) + d · shift` by Lanczos-3 interpolation (6×6 taps), or bilinear where the wider
+//! support would reach past a depth edge or the border. It is **visible** only if that
+//! camera's own disparity map agrees within [`CONSISTENCY_PX`] at every contributing tap,
+//! so that no value is interpolated across a depth edge (depth order: a nearer surface
 //! in front of the point has a larger disparity; a farther one means the reference pixel is
 //! wrong or the camera looks past an edge), the position lies inside the image, and no
 //! interpolation tap is invalid (saturated). Anything else is NaN: masked, never invented.
@@ -158,6 +159,7 @@ pub fn gather_measurements(
             }
         })
         .collect();
+    let kernel = KernelTable::new();
     let mut measurements = crate::io::zeroed_large::<f32>(w * h * rows);
     let mut disputed = vec![false; if depth_order { w * h * cameras } else { 0 }];
     let mut disputed_rows: Vec<&mut [bool]> = if depth_order {
@@ -193,6 +195,7 @@ pub fn gather_measurements(
                         disparity: &disparities[v],
                         shift: shifts[v],
                         nearest: &nearest[v],
+                        kernel: &kernel,
                     };
                     let admitted = if d.is_finite() {
                         warp_one(&source, (x, y), d, textureless[i], dst)
@@ -238,6 +241,7 @@ struct Source<'a> {
     disparity: &'a [f32],
     shift: (f64, f64),
     nearest: &'a [f32],
+    kernel: &'a KernelTable,
 }
 
 /// Whether a warped measurement is visible.
@@ -263,6 +267,7 @@ fn warp_one(
         disparity,
         shift: (sx, sy),
         nearest,
+        kernel,
     } = *source;
     let (w, h, ch) = (view.width, view.height, view.channels);
     let (px, py) = (x as f64 + sx * d as f64, y as f64 + sy * d as f64);
@@ -273,22 +278,33 @@ fn warp_one(
     // Depth order and consistency at every tap that contributes: interpolating across a
     // depth edge would mix the two surfaces' spectra.
     let agrees = |p: usize| (disparity[p] - d).abs() <= CONSISTENCY_PX;
-    let admitted = if taps.iter().all(|&(p, k)| k <= 0.0 || agrees(p))
-        || textureless && flat_between(source, (x, y), d, &taps)
-    {
+    let undisputed = |p: usize| {
+        nearest[p] <= d + CONSISTENCY_PX && claimed_inside(p, disparity[p], (w, h), (sx, sy))
+    };
+    let consistent = taps.iter().all(|&(p, k)| k <= 0.0 || agrees(p));
+    let admitted = if consistent || textureless && flat_between(source, (x, y), d, &taps) {
         Admitted::Yes
     } else if !nearest.is_empty()
-        && taps.iter().all(|&(p, k)| {
-            k <= 0.0
-                || agrees(p)
-                || nearest[p] <= d + CONSISTENCY_PX
-                    && claimed_inside(p, disparity[p], (w, h), (sx, sy))
-        })
+        && taps
+            .iter()
+            .all(|&(p, k)| k <= 0.0 || agrees(p) || undisputed(p))
     {
         Admitted::Disputed
     } else {
         return Admitted::No;
     };
+    // The Lanczos value where its 6×6 support lies on the same surface by the test that
+    // admitted the inner taps; else the bilinear one (near depth edges and borders, and on
+    // a flat stretch between disagreeing maps, where the capture is flat anyway).
+    let support_ok = |p: usize| match admitted {
+        Admitted::Yes => agrees(p),
+        _ => agrees(p) || undisputed(p),
+    };
+    if (consistent || admitted == Admitted::Disputed)
+        && lanczos(view, kernel, (px, py), support_ok, dst)
+    {
+        return admitted;
+    }
     for (c, out) in dst.iter_mut().enumerate() {
         let mut value = 0.0;
         for &(p, k) in &taps {
@@ -366,6 +382,105 @@ fn textureless_pixels(view: &NormalisedView) -> Vec<bool> {
             })
         })
         .collect()
+}
+
+/// Taps of the warp's interpolation kernel per axis, and how many of them lie before the
+/// sample's whole pixel.
+const KERNEL_TAPS: usize = 6;
+const KERNEL_BEFORE: usize = 2;
+
+/// Fractions of a pixel at which the kernel's weights are tabulated: positions are
+/// rounded to 1/1024 px, far below the disparities' accuracy.
+const KERNEL_STEPS: usize = 1024;
+
+/// The kernel's weights at every tabulated fraction (`KERNEL_STEPS + 1` entries, the last
+/// for fractions that round up to a whole pixel).
+pub(crate) struct KernelTable(Vec<[f32; KERNEL_TAPS]>);
+
+impl KernelTable {
+    fn new() -> Self {
+        KernelTable(
+            (0..=KERNEL_STEPS)
+                .map(|k| lanczos3(k as f32 / KERNEL_STEPS as f32))
+                .collect(),
+        )
+    }
+
+    /// The weights at fraction t ∈ [0, 1] and whether they are those of a whole pixel
+    /// (t rounds to 0 or 1).
+    #[inline(always)]
+    fn at(&self, t: f64) -> &[f32; KERNEL_TAPS] {
+        &self.0[(t * KERNEL_STEPS as f64).round() as usize]
+    }
+}
+
+/// Lanczos-3 weights of the taps at −2 … 3 around a fraction t ∈ [0, 1], normalised to
+/// sum 1. `sin(π(t−k)/3)` comes from one sine and cosine by the angle-sum rule.
+fn lanczos3(t: f32) -> [f32; KERNEL_TAPS] {
+    if t == 0.0 {
+        return [0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    }
+    if t == 1.0 {
+        return [0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+    }
+    use std::f32::consts::PI;
+    // sin(πn/3) and cos(πn/3) for the taps' offsets n = −2 … 3 from the whole pixel.
+    const HALF_SQRT3: f32 = 0.866_025_4;
+    const SIN_N: [f32; KERNEL_TAPS] = [-HALF_SQRT3, -HALF_SQRT3, 0.0, HALF_SQRT3, HALF_SQRT3, 0.0];
+    const COS_N: [f32; KERNEL_TAPS] = [-0.5, 0.5, 1.0, 0.5, -0.5, -1.0];
+    let (sin_t, (sin_third, cos_third)) = ((PI * t).sin(), (PI * t / 3.0).sin_cos());
+    let mut w = [0f32; KERNEL_TAPS];
+    for (k, o) in w.iter_mut().enumerate() {
+        let x = t - (k as f32 - 2.0);
+        // sin(π(t − n)) = (−1)ⁿ sin(πt); sin(π(t − n)/3) by the angle-sum rule.
+        let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+        let third = sin_third * COS_N[k] - cos_third * SIN_N[k];
+        *o = 3.0 * sign * sin_t * third / (PI * PI * x * x);
+    }
+    let sum: f32 = w.iter().sum();
+    w.map(|v| v / sum)
+}
+
+/// Lanczos-3 sample of every channel of `view` at (px, py) into `dst`, when the whole 6×6
+/// support lies inside the image, passes `tap_ok` and is finite; false otherwise (`dst`
+/// is then unspecified). On the presets at 640×480 (r0c0, estimated disparities) it gained
+/// 0.33–0.87 dB over the bilinear warp as Catmull-Rom, and 0.03–0.11 dB more as Lanczos-3.
+fn lanczos(
+    view: &NormalisedView,
+    kernel: &KernelTable,
+    (px, py): (f64, f64),
+    tap_ok: impl Fn(usize) -> bool,
+    dst: &mut [f32],
+) -> bool {
+    let (w, h, ch) = (view.width, view.height, view.channels);
+    let (x0, y0) = (px.floor(), py.floor());
+    let (before, after) = (KERNEL_BEFORE as f64, (KERNEL_TAPS - KERNEL_BEFORE) as f64);
+    if x0 < before || y0 < before || x0 + after > (w - 1) as f64 || y0 + after > (h - 1) as f64 {
+        return false;
+    }
+    let (x0, y0) = (x0 as usize - KERNEL_BEFORE, y0 as usize - KERNEL_BEFORE);
+    let (wx, wy) = (kernel.at(px - px.floor()), kernel.at(py - py.floor()));
+    dst.fill(0.0);
+    for (j, &ky) in wy.iter().enumerate() {
+        if ky == 0.0 {
+            continue;
+        }
+        let row = (y0 + j) * w + x0;
+        for (i, &kx) in wx.iter().enumerate() {
+            if kx == 0.0 {
+                continue;
+            }
+            let p = row + i;
+            if !tap_ok(p) {
+                return false;
+            }
+            let k = kx * ky;
+            for (o, &v) in dst.iter_mut().zip(&view.data[p * ch..][..ch]) {
+                *o += k * v;
+            }
+        }
+    }
+    dst.iter().all(|v| v.is_finite())
 }
 
 /// Bilinear sample of every channel of `view` at (px, py) into `out`; false outside.
@@ -541,6 +656,127 @@ mod tests {
         }
         assert_eq!(visibility.measured_fraction[0], 1.0);
         assert!((visibility.seen_by_all - (w - 5) as f64 / w as f64).abs() < 1e-9);
+    }
+
+    /// A fine texture (periods of 5 and 7 px) on a plane at a fractional disparity, seen
+    /// by a 2×2 array: the warped values follow the texture far more closely than a
+    /// bilinear warp can (it loses a fifth of the contrast of a 5 px period between pixels).
+    #[test]
+    fn a_fine_texture_is_warped_without_losing_its_contrast() {
+        let (w, h) = (48usize, 40usize);
+        let geometry = ArrayGeometry {
+            rows: 2,
+            cols: 2,
+            baseline_ratio: 1.3,
+        };
+        let d = 2.37f32;
+        let texture = |x: f32, y: f32| {
+            0.5 + 0.2 * (std::f32::consts::TAU * x / 5.0).sin()
+                + 0.1 * (std::f32::consts::TAU * (y / 7.0 + x / 31.0)).cos()
+        };
+        let views: Vec<NormalisedView> = (0..4)
+            .map(|k| {
+                let (r, c) = (k / 2, k % 2);
+                NormalisedView {
+                    row: r,
+                    col: c,
+                    width: w,
+                    height: h,
+                    channels: 1,
+                    // View (r, c) sees the reference's (x, y) at (x − c·d, y − r·d·1.3).
+                    data: (0..w * h)
+                        .map(|i| {
+                            let (x, y) = ((i % w) as f32, (i / w) as f32);
+                            texture(x + c as f32 * d, y + r as f32 * d * 1.3)
+                        })
+                        .collect(),
+                }
+            })
+            .collect();
+        let maps = vec![vec![d; w * h]; 4];
+        let gathered =
+            gather_measurements(0, &views, &maps, &geometry, Admission::SourceMaps).unwrap();
+        let (mut worst, mut worst_bilinear) = (0f32, 0f32);
+        // Away from the borders, where the 6×6 support fits (shifts are up and left).
+        for y in 7..h - 4 {
+            for x in 6..w - 4 {
+                let truth = texture(x as f32, y as f32);
+                for v in 1..4 {
+                    let got = gathered.measurements[(y * w + x) * 4 + v];
+                    worst = worst.max((got - truth).abs());
+                    let (sx, sy) = geometry.shift((0, 0), (views[v].row, views[v].col));
+                    let mut bilinear = [0f32];
+                    sample(
+                        &views[v],
+                        x as f64 + sx * d as f64,
+                        y as f64 + sy * d as f64,
+                        &mut bilinear,
+                    );
+                    worst_bilinear = worst_bilinear.max((bilinear[0] - truth).abs());
+                }
+            }
+        }
+        assert!(worst < 0.008, "Lanczos-3 warp off by {worst}");
+        assert!(
+            worst_bilinear > 0.03,
+            "bilinear warp off by {worst_bilinear} only"
+        );
+
+        // View r0c1's map disputes columns 24..26 (another surface): a reference pixel
+        // whose two bilinear columns miss them but whose six Lanczos columns reach them
+        // takes the bilinear value; one whose bilinear columns hit them is masked.
+        let mut maps = maps;
+        for (i, m) in maps[1].iter_mut().enumerate() {
+            if (24..26).contains(&(i % w)) {
+                *m = d + 3.0;
+            }
+        }
+        let gathered =
+            gather_measurements(0, &views, &maps, &geometry, Admission::SourceMaps).unwrap();
+        let y = 20;
+        let (mut masked, mut bilinear_kept) = (0, 0);
+        for x in 6..w - 4 {
+            let px = x as f64 - d as f64;
+            let got = gathered.measurements[(y * w + x) * 4 + 1];
+            let first = px.floor() as usize;
+            let hits = |columns: std::ops::Range<usize>| {
+                columns.into_iter().any(|c| (24..26).contains(&c))
+            };
+            if hits(first..first + 2) {
+                assert!(got.is_nan(), "x {x}: {got}");
+                masked += 1;
+            } else if hits(first - 2..first + 4) {
+                let mut bilinear = [0f32];
+                sample(&views[1], px, y as f64, &mut bilinear);
+                assert_eq!(got, bilinear[0], "x {x}");
+                bilinear_kept += 1;
+            } else {
+                assert!(
+                    (got - texture(x as f32, y as f32)).abs() < 0.008,
+                    "x {x}: {got}"
+                );
+            }
+        }
+        assert!(
+            masked >= 2 && bilinear_kept >= 3,
+            "{masked} masked, {bilinear_kept} bilinear"
+        );
+    }
+
+    #[test]
+    fn the_kernel_interpolates_and_keeps_constants() {
+        for step in 0..=KERNEL_STEPS {
+            let t = step as f32 / KERNEL_STEPS as f32;
+            let weights = lanczos3(t);
+            assert!((weights.iter().sum::<f32>() - 1.0).abs() < 1e-6, "t {t}");
+        }
+        assert_eq!(lanczos3(0.0), [0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
+        let half = lanczos3(0.5);
+        assert!((half[2] - half[3]).abs() < 1e-6 && (half[1] - half[4]).abs() < 1e-6);
+        assert!(
+            half[1] < 0.0,
+            "Lanczos lobes are negative next to the centre pair"
+        );
     }
 
     /// One row of two cameras on a plane at disparity 2 whose right map is wrong (5) over
