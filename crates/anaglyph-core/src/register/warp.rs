@@ -395,7 +395,7 @@ const KERNEL_STEPS: usize = 1024;
 
 /// The kernel's weights at every tabulated fraction (`KERNEL_STEPS + 1` entries, the last
 /// for fractions that round up to a whole pixel).
-pub(crate) struct KernelTable(Vec<[f32; KERNEL_TAPS]>);
+struct KernelTable(Vec<[f32; KERNEL_TAPS]>);
 
 impl KernelTable {
     fn new() -> Self {
@@ -406,8 +406,7 @@ impl KernelTable {
         )
     }
 
-    /// The weights at fraction t ∈ [0, 1] and whether they are those of a whole pixel
-    /// (t rounds to 0 or 1).
+    /// The weights at the tabulated fraction nearest to t ∈ [0, 1].
     #[inline(always)]
     fn at(&self, t: f64) -> &[f32; KERNEL_TAPS] {
         &self.0[(t * KERNEL_STEPS as f64).round() as usize]
