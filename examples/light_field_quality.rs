@@ -190,6 +190,7 @@ fn main() -> anyhow::Result<()> {
                 scene_prior: refinements[0].1,
                 matching_image,
                 disputed_tolerance,
+                warp_kernel: Default::default(),
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

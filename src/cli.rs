@@ -505,6 +505,16 @@ pub enum MatchingImageChoice {
     Luminance,
 }
 
+/// How the warp reads a camera at a fractional position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum WarpKernelChoice {
+    /// Lanczos-3 (6×6 taps) where the support lies on one surface, bilinear elsewhere:
+    /// keeps pixel-scale texture (the default; best with refinement).
+    Lanczos3,
+    /// Bilinear: averages sensor noise; slightly better with --no-refine --no-scene-prior.
+    Bilinear,
+}
+
 /// Views of the array: `all` or a list like `r0c0,r1c2`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ViewList {
@@ -691,6 +701,9 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "T", default_value_t = anaglyph_core::reconstruct::DISPUTED_TOLERANCE,
           value_parser = parse_disputed_tolerance)]
     pub disputed_tolerance: f64,
+    /// How the warp reads each camera at the fractional positions the disparities give.
+    #[arg(long, value_enum, default_value_t = WarpKernelChoice::Lanczos3)]
+    pub warp_kernel: WarpKernelChoice,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,

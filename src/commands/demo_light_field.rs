@@ -159,6 +159,7 @@ pub fn run_presets(
             scene_prior: Some(Default::default()),
             matching_image: Default::default(),
             disputed_tolerance: Some(DISPUTED_TOLERANCE),
+            warp_kernel: Default::default(),
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

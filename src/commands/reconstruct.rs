@@ -6,6 +6,7 @@ use super::format_seconds;
 use super::match_pair::{load_network, matching_cost};
 use crate::cli::{
     MatchingImageChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg, ViewList,
+    WarpKernelChoice,
 };
 use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::io::read_pfm;
@@ -13,7 +14,7 @@ use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
 };
 use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
-use anaglyph_core::register::{MatchingImage, RegistrationMode, RegistrationSettings};
+use anaglyph_core::register::{MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel};
 use anaglyph_core::rig::{resolve_curve, Rig};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -133,6 +134,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             MatchingImageChoice::Luminance => MatchingImage::Luminance,
         },
         disputed_tolerance: (args.disputed_tolerance > 0.0).then_some(args.disputed_tolerance),
+        warp_kernel: match args.warp_kernel {
+            WarpKernelChoice::Lanczos3 => WarpKernel::Lanczos3,
+            WarpKernelChoice::Bilinear => WarpKernel::Bilinear,
+        },
     };
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
@@ -170,6 +175,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "refinement": settings.refinement,
         "scene_prior": settings.scene_prior,
         "disputed_tolerance": settings.disputed_tolerance,
+        "warp_kernel": settings.warp_kernel,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
     });

@@ -62,6 +62,7 @@ fn settings<'a>(
         scene_prior: None,
         matching_image: Default::default(),
         disputed_tolerance: None,
+        warp_kernel: Default::default(),
     }
 }
 

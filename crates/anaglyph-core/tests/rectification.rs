@@ -177,6 +177,7 @@ fn true_disparities_hold_again_after_rectification() {
         scene_prior: None,
         matching_image: Default::default(),
         disputed_tolerance: None,
+        warp_kernel: Default::default(),
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -246,6 +247,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         scene_prior: None,
         matching_image: Default::default(),
         disputed_tolerance: None,
+        warp_kernel: Default::default(),
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

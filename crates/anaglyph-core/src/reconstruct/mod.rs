@@ -44,7 +44,7 @@ use crate::register::{
     common_signal_images, common_signals, estimate_search_range, gather_measurements,
     neighbour_agreement, register_views, Admission, ArrayGeometry, CommonSignal, Gathered,
     GridImage, MatchingImage, RegistrationMode, RegistrationSettings, SearchRange, Visibility,
-    COMMON_SIGNALS, LOW_AGREEMENT_WARNING,
+    WarpKernel, COMMON_SIGNALS, LOW_AGREEMENT_WARNING,
 };
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
 use crate::stereo::GreyImage;
@@ -97,6 +97,8 @@ pub struct PipelineSettings<'a> {
     /// factor of the residual without ([`crate::refine::revert_disputed`]); None: the
     /// source cameras' maps decide visibility alone.
     pub disputed_tolerance: Option<f64>,
+    /// How the warp reads the cameras at fractional positions.
+    pub warp_kernel: WarpKernel,
 }
 
 /// The default of [`PipelineSettings::disputed_tolerance`].
@@ -351,7 +353,14 @@ pub fn reconstruct(
             mut measurements,
             visibility,
             disputed,
-        } = gather_measurements(v, &views, &disparities, &geometry, admission)?;
+        } = gather_measurements(
+            v,
+            &views,
+            &disparities,
+            &geometry,
+            admission,
+            settings.warp_kernel,
+        )?;
         warp_seconds += start.elapsed().as_secs_f64();
         progress(Stage::Warping, k + 1, requested.len());
         let start = Instant::now();

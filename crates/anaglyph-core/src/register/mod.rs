@@ -37,7 +37,8 @@ pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};
 pub use warp::{
-    gather_measurements, Admission, Gathered, NormalisedView, Visibility, CONSISTENCY_PX,
+    gather_measurements, Admission, Gathered, NormalisedView, Visibility, WarpKernel,
+    CONSISTENCY_PX,
 };
 
 use crate::rig::Rig;
