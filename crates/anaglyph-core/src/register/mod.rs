@@ -21,6 +21,7 @@
 //!   so that filters do not invert contrast between views), merged by a shared projection.
 
 mod agreement;
+mod ambiguous_planes;
 mod common_signal;
 mod compact_features;
 mod feature_projection;
@@ -30,6 +31,7 @@ mod search_range;
 mod warp;
 
 pub use agreement::{confirmed_by_neighbours, neighbour_agreement, LOW_AGREEMENT_WARNING};
+pub use ambiguous_planes::{resolve_ambiguous_planes, Ambiguity};
 pub use common_signal::{
     common_signal_images, common_signals, CommonSignal, MatchingImage, COMMON_SIGNALS,
 };

@@ -20,7 +20,9 @@
 //! checked against its row and column neighbours' maps (a pixel is kept if at least one
 //! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), each failure takes
 //! whichever of its nearest valid neighbours left, right, above and below has the lowest
-//! multi-view cost at the pixel ([`fill_by_cost`]), and a 5×5 median smooths the result.
+//! multi-view cost at the pixel ([`fill_by_cost`]), a 5×5 median smooths the result, and
+//! regions of repetitive texture, whose costs have several equal minima, take the plane
+//! most of their disparities lie on ([`resolve_ambiguous_planes`]).
 
 use super::compact_features::{
     dot, dot_widened, widen, CompactFeatures, DotKernel, NeighbourProducts,
@@ -30,8 +32,8 @@ use super::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
 use super::feature_projection::FeatureProjection;
 use super::RegistrationSettings;
 use super::{
-    confirmed_by_neighbours, fill_by_cost, smooth_within_surfaces, ArrayGeometry, GridImage,
-    Registration, SUBPIXEL_WINDOW_RADIUS,
+    confirmed_by_neighbours, fill_by_cost, resolve_ambiguous_planes, smooth_within_surfaces,
+    Ambiguity, ArrayGeometry, GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, CostVolume,
@@ -750,11 +752,13 @@ pub fn multi_baseline_disparities(
     };
     let (mut cost_seconds, mut refine_seconds) = (0.0, 0.0);
     let mut raw = Vec::with_capacity(images.len());
+    let mut ambiguities = Vec::with_capacity(images.len());
     for i in 0..images.len() {
         let clock = Instant::now();
         let volume = multi_view_cost_volume(&features, &positions, i, geometry, dm);
         cost_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
+        ambiguities.push(Ambiguity::of_volume(&volume));
         let disparity = match &chain.sgm {
             Some(p) => winner_take_all(&semi_global_matching(
                 &volume,
@@ -800,12 +804,19 @@ pub fn multi_baseline_disparities(
                 }
             };
             fill_by_cost(&mut checked, w, h, &cost);
-            smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
+            let mut smoothed = smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h);
+            let replaced = resolve_ambiguous_planes(&mut smoothed, &ambiguities[i], dm, &cost);
+            tracing::info!(
+                "view r{}c{}: {replaced} pixels of ambiguous regions moved to their plane",
+                images[i].row,
+                images[i].col
+            );
+            smoothed
         })
         .collect();
     drop((features, neighbours));
     timings.push((
-        "cross-check, fill, median".to_string(),
+        "cross-check, fill, median, planes".to_string(),
         clock.elapsed().as_secs_f64(),
     ));
     Ok(Registration {
