@@ -129,6 +129,10 @@ pub struct ReconstructedView {
     /// How many pixels had disputed measurements and how many dropped them (None: the
     /// source cameras' maps decided visibility alone).
     pub disputed: Option<DisputedReport>,
+    /// Pixels whose disparity registration moved to the plane of their ambiguous
+    /// (repetitive) region ([`crate::register::resolve_ambiguous_planes`]; None: given
+    /// disparities, or a registration mode without that step).
+    pub moved_to_planes: Option<usize>,
 }
 
 /// The multispectral light field of an array.
@@ -253,6 +257,7 @@ pub fn reconstruct(
     let geometry = ArrayGeometry::of_rig(rig);
     let mut search_range = None;
     let mut common = None;
+    let mut moved_to_planes = None;
     let disparities = match &settings.given_disparities {
         Some(given) => {
             if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
@@ -319,6 +324,7 @@ pub fn reconstruct(
             for (name, seconds) in &registration.timings {
                 timings.push((format!("registration: {name}"), *seconds));
             }
+            moved_to_planes = registration.moved_to_planes;
             registration.disparities
         }
     };
@@ -510,6 +516,7 @@ pub fn reconstruct(
             median_residual,
             scene_prior: prior_report,
             disputed: disputed_report,
+            moved_to_planes: moved_to_planes.as_ref().map(|moved| moved[v]),
         });
     }
     timings.push(("warping".to_string(), warp_seconds));
@@ -649,6 +656,7 @@ pub struct ViewSummary {
     pub median_residual: Option<f64>,
     pub scene_prior: Option<ScenePriorReport>,
     pub disputed: Option<DisputedReport>,
+    pub moved_to_planes: Option<usize>,
 }
 
 impl ReconstructedView {
@@ -668,6 +676,7 @@ impl ReconstructedView {
             median_residual: self.median_residual,
             scene_prior: self.scene_prior,
             disputed: self.disputed,
+            moved_to_planes: self.moved_to_planes,
         }
     }
 }

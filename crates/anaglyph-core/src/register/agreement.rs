@@ -22,7 +22,7 @@ pub const LOW_AGREEMENT_WARNING: f64 = 0.9;
 
 /// The row and column neighbours of view `i` that exist, with the shift per unit
 /// disparity from `i` to each.
-fn neighbours(
+pub(super) fn neighbours(
     positions: &[(usize, usize)],
     geometry: &ArrayGeometry,
     i: usize,

@@ -45,7 +45,7 @@ pub const MIN_REGION_FRACTION: f64 = 0.01;
 /// Distance from the plane, in pixels of disparity, within which a pixel is an inlier.
 pub const INLIER_PX: f32 = 0.5;
 /// Least fraction of a region on its plane for the plane to be used (the grating's true
-/// plane holds 27 % of its region, each alias far fewer).
+/// plane holds 28 % of its region).
 pub const MIN_INLIER_FRACTION: f64 = 0.2;
 /// Pixels nearer the plane than this keep their own (subpixel) disparity.
 pub const REPLACE_BEYOND_PX: f32 = 1.0;
@@ -305,46 +305,217 @@ fn dominant_plane(points: &[(f64, f64, f64)], seed: u64) -> Option<(Plane, f64)>
     Some((refitted, fraction))
 }
 
-/// Replaces the disparities of `disparity` (`width × height`, searched over
-/// `[0, max_disp)`) that lie off the dominant plane of their ambiguous region (see the
-/// module docs); `cost(x, y, d)` is the view's multi-view cost at a fractional disparity.
-/// Returns how many pixels changed.
-pub fn resolve_ambiguous_planes(
+/// An ambiguous region of a view: its pixels, the plane most of its disparities lie on,
+/// and whether that plane is used: it holds [`MIN_INLIER_FRACTION`] of the region, or a
+/// neighbouring view finds it too ([`vote_with_neighbours`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegionPlane {
+    pub pixels: Vec<usize>,
+    plane: Option<Plane>,
+    pub accepted: bool,
+}
+
+/// The ambiguous regions of a view's map (`ambiguity`'s size) and each one's dominant
+/// plane (see the module docs).
+pub fn region_planes(disparity: &[f32], ambiguity: &Ambiguity) -> Vec<RegionPlane> {
+    let (w, h) = (ambiguity.width, ambiguity.height);
+    if disparity.len() != w * h {
+        return Vec::new();
+    }
+    let min_size = ((MIN_REGION_FRACTION * (w * h) as f64).ceil() as usize).max(3);
+    regions(&ambiguity.region_mask(), w, h, min_size)
+        .into_iter()
+        .enumerate()
+        .map(|(k, pixels)| {
+            let points: Vec<(f64, f64, f64)> = pixels
+                .iter()
+                .filter(|&&i| disparity[i].is_finite())
+                .map(|&i| ((i % w) as f64, (i / w) as f64, f64::from(disparity[i])))
+                .collect();
+            let found = dominant_plane(&points, 0x5EED + k as u64);
+            if let Some((plane, held)) = found {
+                tracing::debug!(
+                    "ambiguous region of {} px: plane {:.4}·x + {:.4}·y + {:.2} holds {held:.3}",
+                    pixels.len(),
+                    plane.a,
+                    plane.b,
+                    plane.c,
+                );
+            }
+            RegionPlane {
+                pixels,
+                plane: found.map(|(plane, _)| plane),
+                accepted: found.is_some_and(|(_, held)| held >= MIN_INLIER_FRACTION),
+            }
+        })
+        .collect()
+}
+
+/// The least and largest x and y of `pixels` (row-major, `width` wide).
+fn bounding_box(pixels: &[usize], width: usize) -> [(usize, usize); 4] {
+    let (mut x0, mut x1, mut y0, mut y1) = (usize::MAX, 0, usize::MAX, 0);
+    for &i in pixels {
+        let (x, y) = (i % width, i / width);
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+}
+
+/// Whether two planes lie within [`REPLACE_BEYOND_PX`] of each other at every corner of
+/// the region's bounding box.
+fn same_plane(a: &Plane, b: &Plane, corners: &[(usize, usize); 4]) -> bool {
+    corners
+        .iter()
+        .all(|&(x, y)| (a.at(x, y) - b.at(x, y)).abs() <= f64::from(REPLACE_BEYOND_PX))
+}
+
+/// Checks each region's plane against the row and column neighbours of the view: each
+/// neighbour's map (after its own plane step) is carried into the view along the array
+/// geometry (`shifts[k]`: the shift per unit disparity from neighbour k to the view), and
+/// the plane its disparities in the region lie on is that neighbour's opinion. The region
+/// takes the plane that most opinions, its own included, agree with (a tie keeps its own),
+/// and uses it if it is its own accepted plane or at least two opinions share it.
+/// A view whose corner position sees the repetitive texture through fewer baselines can
+/// take a period's alias for its plane where its neighbours found the surface (the
+/// demo's periodic scene at 320×240: r0c0 chose an alias, r0c1 and r1c0 the truth).
+/// Returns how many regions changed plane.
+pub fn vote_with_neighbours(
+    regions: &mut [RegionPlane],
+    disparity: &[f32],
+    width: usize,
+    height: usize,
+    neighbours: &[(&[f32], (f64, f64))],
+) -> usize {
+    if regions.is_empty() || neighbours.is_empty() {
+        return 0;
+    }
+    let mut label = vec![u32::MAX; width * height];
+    for (k, region) in regions.iter().enumerate() {
+        for &i in &region.pixels {
+            label[i] = k as u32;
+        }
+    }
+    // Per neighbour and region, its disparities carried into the region.
+    let opinions: Vec<Vec<Option<Plane>>> = neighbours
+        .iter()
+        .enumerate()
+        .map(|(n, &(map, (sx, sy)))| {
+            let mut carried = vec![Vec::new(); regions.len()];
+            for (q, &d) in map.iter().enumerate() {
+                if !d.is_finite() {
+                    continue;
+                }
+                let x = ((q % width) as f64 + sx * f64::from(d)).round();
+                let y = ((q / width) as f64 + sy * f64::from(d)).round();
+                if x < 0.0 || y < 0.0 || x >= width as f64 || y >= height as f64 {
+                    continue;
+                }
+                let p = y as usize * width + x as usize;
+                if let Some(points) = carried.get_mut(label[p] as usize) {
+                    points.push((x, y, f64::from(d)));
+                }
+            }
+            carried
+                .iter()
+                .zip(regions.iter())
+                .enumerate()
+                .map(|(k, (points, region))| {
+                    if points.len() * 10 < region.pixels.len() {
+                        return None; // the neighbour sees too little of the region
+                    }
+                    let seed = 0xB0A7 + (n * regions.len() + k) as u64;
+                    dominant_plane(points, seed)
+                        .and_then(|(plane, held)| (held >= MIN_INLIER_FRACTION).then_some(plane))
+                })
+                .collect()
+        })
+        .collect();
+    let mut changed = 0;
+    for (k, region) in regions.iter_mut().enumerate() {
+        let corners = bounding_box(&region.pixels, width);
+        let candidates: Vec<Plane> = region
+            .plane
+            .into_iter()
+            .chain(opinions.iter().filter_map(|o| o[k]))
+            .collect();
+        let Some(&first) = candidates.first() else {
+            continue;
+        };
+        let support = |c: &Plane| {
+            candidates
+                .iter()
+                .filter(|o| same_plane(c, o, &corners))
+                .count()
+        };
+        let mut best = (first, support(&first));
+        for c in &candidates[1..] {
+            let s = support(c);
+            if s > best.1 {
+                best = (*c, s);
+            }
+        }
+        if region
+            .plane
+            .is_some_and(|own| same_plane(&best.0, &own, &corners))
+        {
+            // Kept: used if it held enough of the region or a neighbour shares it.
+            region.accepted |= best.1 >= 2;
+            continue;
+        }
+        if best.1 < 2 {
+            region.accepted = false;
+            continue;
+        }
+        // Refit on the view's own disparities on the chosen plane where enough lie on it.
+        let on_plane: Vec<(f64, f64, f64)> = region
+            .pixels
+            .iter()
+            .filter(|&&i| {
+                let d = disparity[i];
+                d.is_finite()
+                    && (best.0.at(i % width, i / width) - f64::from(d)).abs() < f64::from(INLIER_PX)
+            })
+            .map(|&i| {
+                (
+                    (i % width) as f64,
+                    (i / width) as f64,
+                    f64::from(disparity[i]),
+                )
+            })
+            .collect();
+        let refitted = (on_plane.len() * 20 >= region.pixels.len())
+            .then(|| Plane::fit(&on_plane))
+            .flatten()
+            .filter(|p| same_plane(p, &best.0, &corners));
+        region.plane = Some(refitted.unwrap_or(best.0));
+        region.accepted = true;
+        changed += 1;
+    }
+    changed
+}
+
+/// Moves the pixels of each region more than [`REPLACE_BEYOND_PX`] off its plane onto it,
+/// where the plane's cost is below the median of the pixel's costs (see the module docs);
+/// `cost(x, y, d)` is the view's multi-view cost at a fractional disparity, searched over
+/// `[0, max_disp)`. Returns how many pixels changed.
+pub fn apply_region_planes(
     disparity: &mut [f32],
     ambiguity: &Ambiguity,
     max_disp: usize,
+    regions: &[RegionPlane],
     cost: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
 ) -> usize {
-    let (w, h) = (ambiguity.width, ambiguity.height);
-    if disparity.len() != w * h || max_disp < 2 {
+    let w = ambiguity.width;
+    if disparity.len() != w * ambiguity.height || max_disp < 2 {
         return 0;
     }
-    let min_size = ((MIN_REGION_FRACTION * (w * h) as f64).ceil() as usize).max(3);
     let mut replaced = 0;
-    for (k, region) in regions(&ambiguity.region_mask(), w, h, min_size)
-        .into_iter()
-        .enumerate()
-    {
-        let points: Vec<(f64, f64, f64)> = region
-            .iter()
-            .filter(|&&i| disparity[i].is_finite())
-            .map(|&i| ((i % w) as f64, (i / w) as f64, f64::from(disparity[i])))
-            .collect();
-        let Some((plane, fraction)) = dominant_plane(&points, 0x5EED + k as u64) else {
+    for region in regions {
+        let Some(plane) = region.plane.filter(|_| region.accepted) else {
             continue;
         };
-        tracing::debug!(
-            "ambiguous region of {} px: plane {:.4}·x + {:.4}·y + {:.2} holds {:.3}",
-            region.len(),
-            plane.a,
-            plane.b,
-            plane.c,
-            fraction
-        );
-        if fraction < MIN_INLIER_FRACTION {
-            continue;
-        }
         let updates: Vec<(usize, f32)> = region
+            .pixels
             .par_iter()
             .filter_map(|&i| {
                 let (x, y) = (i % w, i / w);
@@ -362,6 +533,17 @@ pub fn resolve_ambiguous_planes(
         }
     }
     replaced
+}
+
+/// [`region_planes`] then [`apply_region_planes`] on one view, without neighbours.
+pub fn resolve_ambiguous_planes(
+    disparity: &mut [f32],
+    ambiguity: &Ambiguity,
+    max_disp: usize,
+    cost: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
+) -> usize {
+    let regions = region_planes(disparity, ambiguity);
+    apply_region_planes(disparity, ambiguity, max_disp, &regions, cost)
 }
 
 #[cfg(test)]
@@ -482,5 +664,63 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A view whose region plane is an alias a period off takes the plane its two
+    /// neighbours' maps agree on; with one dissenting neighbour it keeps its own.
+    #[test]
+    fn two_neighbours_outvote_an_alias_plane() {
+        let (w, h, dm, period) = (120usize, 90usize, 64usize, 7.0f32);
+        let truth = |x: usize| 20.0 + 0.04 * x as f32;
+        let cost = |x: usize, _: usize, d: f32| {
+            let phase = 2.0 * std::f32::consts::PI * (d - truth(x)) / period;
+            0.3 - 0.1 * phase.cos()
+        };
+        let mut rng = SplitMix(3);
+        let mut volume = CostVolume::new(w, h, dm);
+        for (i, slot) in volume.data.iter_mut().enumerate() {
+            let (p, d) = (i / dm, i % dm);
+            *slot = cost(p % w, p / w, d as f32) + (rng.next() % 1000) as f32 / 1000.0 * 0.004;
+        }
+        let ambiguity = Ambiguity::of_volume(&volume);
+        // The view: 60 % of its columns a period off, the rest right.
+        let view: Vec<f32> = (0..w * h)
+            .map(|i| truth(i % w) + if (i % w) % 5 < 3 { period } else { 0.0 })
+            .collect();
+        let mut regions = region_planes(&view, &ambiguity);
+        assert_eq!(regions.len(), 1);
+        let alias = regions[0].plane.unwrap();
+        assert!((alias.at(60, 45) as f32 - truth(60) - period).abs() < 0.1);
+        // Neighbours one column step to the right and one row down (shift from them to
+        // the view: +d along x, and +d·ratio along y), on the true surface.
+        // The right neighbour's pixel x sees the view's x + d: d = truth(x + d).
+        let right: Vec<f32> = (0..w * h)
+            .map(|i| (20.0 + 0.04 * (i % w) as f32) / 0.96)
+            .collect();
+        let below: Vec<f32> = (0..w * h).map(|i| truth(i % w)).collect();
+        let wrong: Vec<f32> = below.iter().map(|d| d + 2.0 * period).collect();
+        let mut dissent = regions.clone();
+        let changed = vote_with_neighbours(
+            &mut regions,
+            &view,
+            w,
+            h,
+            &[(&right, (1.0, 0.0)), (&below, (0.0, 0.0))],
+        );
+        assert_eq!(changed, 1);
+        let mut planar = view.clone();
+        apply_region_planes(&mut planar, &ambiguity, dm, &regions, &cost);
+        for (i, d) in planar.iter().enumerate() {
+            assert!((d - truth(i % w)).abs() < 0.6, "pixel {i}: {d}");
+        }
+        let kept = vote_with_neighbours(
+            &mut dissent,
+            &view,
+            w,
+            h,
+            &[(&right, (1.0, 0.0)), (&wrong, (0.0, 0.0))],
+        );
+        assert_eq!(kept, 0);
+        assert_eq!(dissent[0].plane, Some(alias));
     }
 }

@@ -31,7 +31,10 @@ mod search_range;
 mod warp;
 
 pub use agreement::{confirmed_by_neighbours, neighbour_agreement, LOW_AGREEMENT_WARNING};
-pub use ambiguous_planes::{resolve_ambiguous_planes, Ambiguity};
+pub use ambiguous_planes::{
+    apply_region_planes, region_planes, resolve_ambiguous_planes, vote_with_neighbours, Ambiguity,
+    RegionPlane,
+};
 pub use common_signal::{
     common_signal_images, common_signals, CommonSignal, MatchingImage, COMMON_SIGNALS,
 };
@@ -152,12 +155,15 @@ pub fn fill_from_nearest(row: &mut [f32]) {
     }
 }
 
-/// A disparity map per view (in `images` order, NaN where nothing could be estimated) and
-/// the seconds each stage took.
+/// A disparity map per view (in `images` order, NaN where nothing could be estimated), the
+/// seconds each stage took and what the plane step changed.
 #[derive(Debug, Clone)]
 pub struct Registration {
     pub disparities: Vec<Vec<f32>>,
     pub timings: Vec<(String, f64)>,
+    /// Per view, the pixels that [`resolve_ambiguous_planes`] moved to the plane of their
+    /// ambiguous region (None: the mode has no such step).
+    pub moved_to_planes: Option<Vec<usize>>,
 }
 
 /// Estimates every view's disparity map. `progress(done, total)` is called as views finish.

@@ -22,8 +22,10 @@
 //! whichever of its nearest valid neighbours left, right, above and below has the lowest
 //! multi-view cost at the pixel ([`fill_by_cost`]), a 5×5 median smooths the result, and
 //! regions of repetitive texture, whose costs have several equal minima, take the plane
-//! most of their disparities lie on ([`resolve_ambiguous_planes`]).
+//! most of their disparities lie on, unless most of the view's row and column neighbours
+//! find another ([`region_planes`], [`vote_with_neighbours`], [`apply_region_planes`]).
 
+use super::agreement::neighbours as array_neighbours;
 use super::compact_features::{
     dot, dot_widened, widen, CompactFeatures, DotKernel, NeighbourProducts,
 };
@@ -32,8 +34,9 @@ use super::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
 use super::feature_projection::FeatureProjection;
 use super::RegistrationSettings;
 use super::{
-    confirmed_by_neighbours, fill_by_cost, resolve_ambiguous_planes, smooth_within_surfaces,
-    Ambiguity, ArrayGeometry, GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
+    apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
+    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, GridImage, RegionPlane,
+    Registration, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, CostVolume,
@@ -781,39 +784,75 @@ pub fn multi_baseline_disparities(
     timings.push(("multi-view cost".to_string(), cost_seconds));
     timings.push(("SGM + subpixel".to_string(), refine_seconds));
     let clock = Instant::now();
-    let disparities = (0..images.len())
+    let others: Vec<_> = (0..images.len())
+        .map(|i| others_of(&positions, i, geometry))
+        .collect();
+    let cost_of = |i: usize| {
+        let (features, others, neighbours) = (&features, &others[i], &neighbours);
+        move |x: usize, y: usize, d: f32| {
+            let job = RowJob {
+                features,
+                others,
+                reference: &features[i],
+                y,
+            };
+            match kernel {
+                // The dot products of the neighbours' products, for the same rounding.
+                #[cfg(target_arch = "x86_64")]
+                DotKernel::Avx512Bf16 => cost_at(&job, neighbours, x, d as f64, |a, b| {
+                    // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
+                    // features have a multiple of 32 channels (`for_channels`).
+                    unsafe { dot_avx512_bf16(a, b) }
+                }),
+                _ => cost_at(&job, neighbours, x, d as f64, dot),
+            }
+        }
+    };
+    // Cross-check, fill, median; then each view's ambiguous regions and their planes.
+    let smoothed: Vec<(Vec<f32>, Vec<RegionPlane>)> = (0..images.len())
         .map(|i| {
             let mut checked = confirmed_by_neighbours(&raw, &positions, geometry, i, w, h);
-            let others = others_of(&positions, i, geometry);
-            let cost = |x: usize, y: usize, d: f32| {
-                let job = RowJob {
-                    features: &features,
-                    others: &others,
-                    reference: &features[i],
-                    y,
-                };
-                match kernel {
-                    // The dot products of the neighbours' products, for the same rounding.
-                    #[cfg(target_arch = "x86_64")]
-                    DotKernel::Avx512Bf16 => cost_at(&job, &neighbours, x, d as f64, |a, b| {
-                        // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
-                        // features have a multiple of 32 channels (`for_channels`).
-                        unsafe { dot_avx512_bf16(a, b) }
-                    }),
-                    _ => cost_at(&job, &neighbours, x, d as f64, dot),
-                }
-            };
-            fill_by_cost(&mut checked, w, h, &cost);
-            let mut smoothed = smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h);
-            let replaced = resolve_ambiguous_planes(&mut smoothed, &ambiguities[i], dm, &cost);
-            tracing::info!(
-                "view r{}c{}: {replaced} pixels of ambiguous regions moved to their plane",
-                images[i].row,
-                images[i].col
-            );
-            smoothed
+            fill_by_cost(&mut checked, w, h, &cost_of(i));
+            let map = smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h);
+            let regions = region_planes(&map, &ambiguities[i]);
+            (map, regions)
         })
         .collect();
+    let on_own_planes: Vec<Vec<f32>> = smoothed
+        .iter()
+        .enumerate()
+        .map(|(i, (map, regions))| {
+            let mut planar = map.clone();
+            apply_region_planes(&mut planar, &ambiguities[i], dm, regions, &cost_of(i));
+            planar
+        })
+        .collect();
+    // Each view's planes put to the vote of its row and column neighbours' planar maps.
+    let (disparities, moved): (Vec<Vec<f32>>, Vec<usize>) = smoothed
+        .into_iter()
+        .enumerate()
+        .map(|(i, (map, mut regions))| {
+            let voters: Vec<(&[f32], (f64, f64))> = array_neighbours(&positions, geometry, i)
+                .into_iter()
+                .map(|(j, _)| {
+                    let shift = geometry.shift(positions[j], positions[i]);
+                    (on_own_planes[j].as_slice(), shift)
+                })
+                .collect();
+            let changed = vote_with_neighbours(&mut regions, &map, w, h, &voters);
+            let mut planar = map;
+            let replaced =
+                apply_region_planes(&mut planar, &ambiguities[i], dm, &regions, &cost_of(i));
+            tracing::info!(
+                "view r{}c{}: {} ambiguous regions ({changed} of them outvoted by the \
+                 neighbours), {replaced} pixels moved to their planes",
+                images[i].row,
+                images[i].col,
+                regions.len()
+            );
+            (planar, replaced)
+        })
+        .unzip();
     drop((features, neighbours));
     timings.push((
         "cross-check, fill, median, planes".to_string(),
@@ -822,6 +861,7 @@ pub fn multi_baseline_disparities(
     Ok(Registration {
         disparities,
         timings,
+        moved_to_planes: Some(moved),
     })
 }
 

@@ -173,6 +173,7 @@ pub fn pairwise_disparities(
             ("row pairs".into(), row_seconds),
             ("column pairs".into(), column_seconds),
         ],
+        moved_to_planes: None,
     })
 }
 
