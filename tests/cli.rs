@@ -370,11 +370,16 @@ fn demo_runs_and_reports_the_paper_figures() {
             > 33.9
     );
     assert!(fields[0]["reference_bad2"].as_f64().unwrap() < 5.0);
-    // Neighbour agreement needs no truth and tells the failed registration apart: lowest
-    // over the views 0.950 (tabletop), 0.921 (clutter), 0.673 (periodic) measured.
+    // Neighbour agreement needs no truth and tells the harder registration apart: lowest
+    // over the views 0.970 (tabletop), 0.927 (clutter), 0.840 (periodic) measured, the
+    // periodic one under the warning's 0.9 (0.673 before the plane step of ambiguous
+    // regions).
     let agreement = |k: usize| fields[k]["estimated"]["min_agreement"].as_f64().unwrap();
     assert!(agreement(0) > 0.92 && agreement(1) > 0.9, "{fields:?}");
-    assert!(agreement(2) < 0.8, "{fields:?}");
+    assert!(
+        agreement(2) < anaglyph_core::register::LOW_AGREEMENT_WARNING,
+        "{fields:?}"
+    );
     for f in [
         "report.html",
         "noise_in_c.svg",

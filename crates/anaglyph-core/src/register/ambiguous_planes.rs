@@ -17,13 +17,17 @@
 //! ([`Ambiguity::of_volume`]); a region is a connected set of pixels most of whose
 //! neighbourhood is ambiguous; a region large enough gets a RANSAC plane
 //! `d = a·x + b·y + c` (inliers within [`INLIER_PX`]), refitted by least squares on its
-//! inliers, and kept if at least [`MIN_INLIER_FRACTION`] of the region lies on it; then
-//! every pixel of the region more than [`REPLACE_BEYOND_PX`] off the plane takes the
-//! plane's disparity if its cost there is below the median of its costs (a surface of
-//! another depth that strays into the region has a clear minimum elsewhere and keeps it).
+//! inliers, and kept if at least [`MIN_INLIER_FRACTION`] of the region lies on it
+//! ([`region_planes`]); the plane is put to the vote of the view's row and column
+//! neighbours, whose maps carried into the view give their own planes for the region
+//! ([`vote_with_neighbours`]); then every pixel of the region more than
+//! [`REPLACE_BEYOND_PX`] off the plane takes the plane's disparity if its cost there is
+//! below the median of its costs (a surface of another depth that strays into the region
+//! has a clear minimum elsewhere and keeps it; [`apply_region_planes`]).
 //!
-//! In: a view's disparity map after the median, its [`Ambiguity`] and a cost function at
-//! fractional disparities. Out: the map, changed in place; the count of replaced pixels.
+//! In: a view's disparity map after the median, its [`Ambiguity`], a cost function at
+//! fractional disparities and its neighbours' maps. Out: the map, changed in place; the
+//! count of replaced pixels.
 
 use crate::stereo::CostVolume;
 use rayon::prelude::*;
