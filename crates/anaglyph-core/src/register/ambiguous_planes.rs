@@ -382,7 +382,7 @@ fn same_plane(a: &Plane, b: &Plane, corners: &[(usize, usize); 4]) -> bool {
 /// A view whose corner position sees the repetitive texture through fewer baselines can
 /// take a period's alias for its plane where its neighbours found the surface (the
 /// demo's periodic scene at 320×240: r0c0 chose an alias, r0c1 and r1c0 the truth).
-/// Returns how many regions changed plane.
+/// Returns how many regions changed plane or came to be used.
 pub fn vote_with_neighbours(
     regions: &mut [RegionPlane],
     disparity: &[f32],
@@ -463,7 +463,10 @@ pub fn vote_with_neighbours(
             .is_some_and(|own| same_plane(&best.0, &own, &corners))
         {
             // Kept: used if it held enough of the region or a neighbour shares it.
-            region.accepted |= best.1 >= 2;
+            if !region.accepted && best.1 >= 2 {
+                region.accepted = true;
+                changed += 1;
+            }
             continue;
         }
         if best.1 < 2 {

@@ -818,13 +818,13 @@ pub fn multi_baseline_disparities(
             (map, regions)
         })
         .collect();
-    let on_own_planes: Vec<Vec<f32>> = smoothed
+    let on_own_planes: Vec<(Vec<f32>, usize)> = smoothed
         .iter()
         .enumerate()
         .map(|(i, (map, regions))| {
             let mut planar = map.clone();
-            apply_region_planes(&mut planar, &ambiguities[i], dm, regions, &cost_of(i));
-            planar
+            let moved = apply_region_planes(&mut planar, &ambiguities[i], dm, regions, &cost_of(i));
+            (planar, moved)
         })
         .collect();
     // Each view's planes put to the vote of its row and column neighbours' planar maps.
@@ -836,16 +836,21 @@ pub fn multi_baseline_disparities(
                 .into_iter()
                 .map(|(j, _)| {
                     let shift = geometry.shift(positions[j], positions[i]);
-                    (on_own_planes[j].as_slice(), shift)
+                    (on_own_planes[j].0.as_slice(), shift)
                 })
                 .collect();
             let changed = vote_with_neighbours(&mut regions, &map, w, h, &voters);
-            let mut planar = map;
-            let replaced =
-                apply_region_planes(&mut planar, &ambiguities[i], dm, &regions, &cost_of(i));
+            let (planar, replaced) = if changed == 0 {
+                on_own_planes[i].clone()
+            } else {
+                let mut planar = map;
+                let moved =
+                    apply_region_planes(&mut planar, &ambiguities[i], dm, &regions, &cost_of(i));
+                (planar, moved)
+            };
             tracing::info!(
-                "view r{}c{}: {} ambiguous regions ({changed} of them outvoted by the \
-                 neighbours), {replaced} pixels moved to their planes",
+                "view r{}c{}: {} ambiguous regions ({changed} of them changed by the \
+                 neighbours' vote), {replaced} pixels moved to their planes",
                 images[i].row,
                 images[i].col,
                 regions.len()
