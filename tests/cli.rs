@@ -370,6 +370,12 @@ fn demo_runs_and_reports_the_paper_figures() {
             > 33.9
     );
     assert!(fields[0]["reference_bad2"].as_f64().unwrap() < 5.0);
+    // The periodic grating's aliases brought back by the planes of ambiguous regions:
+    // 21.2 % of r0c0's disparities off by more than 2 px measured (64.0 % without them).
+    assert!(
+        fields[2]["reference_bad2"].as_f64().unwrap() < 35.0,
+        "{fields:?}"
+    );
     // Neighbour agreement needs no truth and tells the harder registration apart: lowest
     // over the views 0.970 (tabletop), 0.927 (clutter), 0.840 (periodic) measured, the
     // periodic one under the warning's 0.9 (0.673 before the plane step of ambiguous
