@@ -17,16 +17,17 @@
 //! `DISPUTED_TOLERANCE`; 0: the cameras' maps decide visibility alone).
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
-use anaglyph_core::reconstruct::{
-    reconstruct, ArrayCaptures, PipelineSettings, DISPUTED_TOLERANCE,
-};
-use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
+use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
 };
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
+use anaglyph_core::solve::{
+    ScenePriorSettings, SolveSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR,
+};
 use anaglyph_core::stereo::{MatchingCost, MatchingNetwork};
 use std::time::Instant;
 
@@ -78,7 +79,6 @@ fn main() -> anyhow::Result<()> {
                             noise_scale,
                             clusters,
                             propagation_rounds: rounds,
-                            ..defaults
                         }),
                     )
                 }
@@ -180,17 +180,12 @@ fn main() -> anyhow::Result<()> {
                     cost: MatchingCost::Learned(&network),
                     max_disp,
                 },
-                white_reflectance: simulation.settings.white_reflectance,
-                saturation_level: 0.999,
-                demux: Default::default(),
-                views: None,
-                given_disparities: given,
                 automatic_search_range: false,
-                refinement: refinements[0].0,
-                scene_prior: refinements[0].1,
                 matching_image,
-                disputed_tolerance,
-                warp_kernel: Default::default(),
+                given_disparities: given,
+                white_reflectance: simulation.settings.white_reflectance,
+                solve: solve_settings(refinements[0], disputed_tolerance),
+                ..PipelineSettings::new(MatchingCost::Learned(&network))
             };
             let start = Instant::now();
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
@@ -202,7 +197,7 @@ fn main() -> anyhow::Result<()> {
                 let (field, seconds) = if k == 0 {
                     (field.clone(), seconds)
                 } else {
-                    (pipeline.refinement, pipeline.scene_prior) = refinement;
+                    pipeline.solve = solve_settings(refinement, disputed_tolerance);
                     let start = Instant::now();
                     let refined = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
                     (refined, start.elapsed().as_secs_f64())
@@ -274,4 +269,18 @@ fn main() -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The solve's stages for a (refinement, scene prior) pair: the inconsistent pixels run
+/// with the scene prior, which estimates them.
+fn solve_settings(
+    (refinement, scene_prior): (Option<GuidedRefinement>, Option<ScenePriorSettings>),
+    disputed_tolerance: Option<f64>,
+) -> SolveSettings {
+    SolveSettings {
+        disputed_tolerance,
+        inconsistency_factor: scene_prior.map(|_| INCONSISTENCY_FACTOR),
+        scene_prior,
+        refinement,
+    }
 }

@@ -3,8 +3,9 @@
 
 use anaglyph_core::demux::Solver;
 use anaglyph_core::filters::SelectionCriterion;
-use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::rig::OutOfBand;
+use anaglyph_core::solve::{ScenePriorSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -667,7 +668,9 @@ pub struct ReconstructArgs {
           value_parser = parse_non_negative)]
     pub refine_confidence: f64,
     /// Leave the pixels some cameras do not see to Eq. 6's smoothness alone instead of
-    /// estimating them from the spectra of the pixels every camera sees.
+    /// estimating them from the spectra of the pixels every camera sees. Also switches off
+    /// the inconsistent-pixels stage (--scene-prior-inconsistency), whose pixels the prior
+    /// estimates.
     #[arg(long)]
     pub no_scene_prior: bool,
     /// Scene prior: multiplies the measurement noise it assumes (learned from the
@@ -691,14 +694,14 @@ pub struct ReconstructArgs {
     /// measured pixels' keep only their own camera's measurements, and the prior estimates
     /// them from those (a wrong match gathers other surfaces' light); 0 keeps every
     /// measurement.
-    #[arg(long, value_name = "K", default_value_t = ScenePriorSettings::default().inconsistency_factor,
+    #[arg(long, value_name = "K", default_value_t = INCONSISTENCY_FACTOR,
           value_parser = parse_non_negative)]
     pub scene_prior_inconsistency: f64,
     /// Admit the warped measurements a camera's own disparity map disputes but the view's
     /// depth order allows (on repetitive surfaces the views' maps pick different periods),
     /// and keep them where a pixel's residual with them stays within T times its residual
     /// without them; 0: the cameras' maps decide visibility alone.
-    #[arg(long, value_name = "T", default_value_t = anaglyph_core::reconstruct::DISPUTED_TOLERANCE,
+    #[arg(long, value_name = "T", default_value_t = DISPUTED_TOLERANCE,
           value_parser = parse_disputed_tolerance)]
     pub disputed_tolerance: f64,
     /// How the warp reads each camera at the fractional positions the disparities give.

@@ -687,7 +687,25 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
         .as_array()
         .unwrap()
         .iter()
-        .any(|t| t[0] == "refinement"));
+        .any(|t| t[0] == "guided refinement"));
+    let stages: Vec<&str> = manifest["solve_stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        stages,
+        [
+            "demultiplexing",
+            "disputed measurements",
+            "inconsistent pixels",
+            "scene prior",
+            "confidence",
+            "reported bands",
+            "guided refinement"
+        ]
+    );
 
     let o = anaglyph(
         &[

@@ -7,7 +7,6 @@ use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
 use anaglyph_core::io::write_disparity_preview;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
-    DISPUTED_TOLERANCE,
 };
 use anaglyph_core::register::{
     ArrayGeometry, RegistrationMode, RegistrationSettings, DEFAULT_REGISTRATION,
@@ -149,17 +148,9 @@ pub fn run_presets(
                 cost: MatchingCost::Learned(&network),
                 max_disp,
             },
-            white_reflectance: simulation.settings.white_reflectance,
-            saturation_level: 0.999,
-            demux: Default::default(),
-            views: None,
-            given_disparities: None,
             automatic_search_range: false,
-            refinement: Some(Default::default()),
-            scene_prior: Some(Default::default()),
-            matching_image: Default::default(),
-            disputed_tolerance: Some(DISPUTED_TOLERANCE),
-            warp_kernel: Default::default(),
+            white_reflectance: simulation.settings.white_reflectance,
+            ..PipelineSettings::new(MatchingCost::Learned(&network))
         };
         let start = Instant::now();
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -13,9 +13,10 @@ use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
 };
-use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel};
 use anaglyph_core::rig::{resolve_curve, Rig};
+use anaglyph_core::solve::{ScenePriorSettings, SolveSettings};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::Path;
@@ -118,22 +119,25 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         },
         automatic_search_range: args.max_disp == SearchRangeArg::Auto && given.is_none(),
         given_disparities: given,
-        refinement: (!args.no_refine).then_some(GuidedRefinement {
-            radius: args.refine_radius as usize,
-            epsilon: args.refine_epsilon,
-            confidence_scale: (args.refine_confidence > 0.0).then_some(args.refine_confidence),
-        }),
-        scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
-            noise_scale: args.scene_prior_noise,
-            clusters: args.scene_prior_clusters as usize,
-            propagation_rounds: args.scene_prior_rounds as usize,
-            inconsistency_factor: args.scene_prior_inconsistency,
-        }),
         matching_image: match args.matching_image {
             MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
             MatchingImageChoice::Luminance => MatchingImage::Luminance,
         },
-        disputed_tolerance: (args.disputed_tolerance > 0.0).then_some(args.disputed_tolerance),
+        solve: SolveSettings {
+            disputed_tolerance: (args.disputed_tolerance > 0.0).then_some(args.disputed_tolerance),
+            inconsistency_factor: (!args.no_scene_prior && args.scene_prior_inconsistency > 0.0)
+                .then_some(args.scene_prior_inconsistency),
+            scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
+                noise_scale: args.scene_prior_noise,
+                clusters: args.scene_prior_clusters as usize,
+                propagation_rounds: args.scene_prior_rounds as usize,
+            }),
+            refinement: (!args.no_refine).then_some(GuidedRefinement {
+                radius: args.refine_radius as usize,
+                epsilon: args.refine_epsilon,
+                confidence_scale: (args.refine_confidence > 0.0).then_some(args.refine_confidence),
+            }),
+        },
         warp_kernel: match args.warp_kernel {
             WarpKernelChoice::Lanczos3 => WarpKernel::Lanczos3,
             WarpKernelChoice::Bilinear => WarpKernel::Bilinear,
@@ -145,9 +149,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         bar.set_message(match stage {
             Stage::Rectification => "rectification",
             Stage::Registration => "registration",
-            Stage::Warping => "warping",
-            Stage::Demultiplexing => "demultiplexing",
-            Stage::Refinement => "refinement",
+            Stage::Views => "views",
         });
         bar.set_length(total as u64);
         bar.set_position(done as u64);
@@ -172,9 +174,10 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "saturation": args.saturation,
         "solver": format!("{:?}", settings.demux.solver),
         "lambda": rig.file.reconstruction.lambda,
-        "refinement": settings.refinement,
-        "scene_prior": settings.scene_prior,
-        "disputed_tolerance": settings.disputed_tolerance,
+        "refinement": settings.solve.refinement,
+        "scene_prior": settings.solve.scene_prior,
+        "disputed_tolerance": settings.solve.disputed_tolerance,
+        "inconsistency_factor": settings.solve.inconsistency_factor,
         "warp_kernel": settings.warp_kernel,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
@@ -211,7 +214,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
             view.row,
             view.col,
             100.0 * view.visibility.seen_by_all,
-            view.demux.unmeasured_pixels
+            view.solve.demux.unmeasured_pixels
         );
     }
     for (stage, seconds) in &field.timings {

@@ -2,12 +2,13 @@
 //! three-channel guide at the default radius, at VGA and full-HD sizes. The content is a
 //! seeded pseudo-random texture; the filter's cost does not depend on it. Also the scene
 //! prior (learning it and filling a view's under-measured pixels, propagation rounds
-//! included: `ScenePrior::fill_view`) at the paper rig's
+//! included: `solve::fill_view`) at the paper rig's
 //! shape: 24 measurement rows, 52 knots, a quarter of the pixels missing 3 to 18 rows.
 
-use anaglyph_core::refine::{
-    guided_filter, GuidedFilter, GuidedRefinement, ScenePrior, ScenePriorSettings,
-};
+use anaglyph_core::refine::{guided_filter, GuidedFilter, GuidedRefinement};
+use anaglyph_core::rig::SensingMatrix;
+use anaglyph_core::solve::{fill_view, ScenePriorSettings};
+use anaglyph_core::spectrum::SpectralShape;
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 
 fn texture(len: usize, seed: u64) -> Vec<f32> {
@@ -54,6 +55,8 @@ fn bench_scene_prior(criterion: &mut Criterion) {
     let (rows, knots) = (24usize, 52usize);
     let c = texture(rows * knots, 3);
     let c: Vec<f64> = c.iter().map(|&v| v as f64).collect();
+    let shape = SpectralShape::new(400.0, 5.0, knots).expect("shape");
+    let sensing = SensingMatrix::from_dense(rows, shape, c.clone()).expect("C");
     for (w, h) in [(640usize, 480usize), (1920, 1080)] {
         let pixels = w * h;
         // Spectra from three texture planes (a low-rank scene), measured through C.
@@ -91,9 +94,8 @@ fn bench_scene_prior(criterion: &mut Criterion) {
         // The whole stage as `reconstruct` runs it (propagation rounds included); the
         // timed work must fill pixels, not reject them all at the gate.
         let fill = |spectra: &mut [f32]| {
-            ScenePrior::fill_view(
-                &c,
-                rows,
+            fill_view(
+                &sensing,
                 &measurements,
                 spectra,
                 &mut residuals.clone(),

@@ -60,6 +60,20 @@ pub enum Error {
         cols: usize,
     },
 
+    #[error("{setting} is {value} (expected {expected})")]
+    OutOfRange {
+        setting: &'static str,
+        value: f64,
+        expected: String,
+    },
+
+    #[error("the {stage} stage needs {needs}: {why}")]
+    StageDependency {
+        stage: &'static str,
+        needs: &'static str,
+        why: &'static str,
+    },
+
     #[error("linear algebra failure in {op}: {message}")]
     LinearAlgebra { op: String, message: String },
 

@@ -6,8 +6,9 @@
 //! ```text
 //! spectrum (curves) + filters + rig -> sensing matrix C -> capture (forward model, noise)
 //! scene -> simulate -> captures -> rectify -> stereo -> register (disparity per view, warp)
-//!   -> demux (per-pixel solve of Eq. 6) -> refine (guided by each view's own capture)
-//!   -> reconstruct (the light field) -> metrics
+//!   -> solve (per view: demux's Eq. 6, then the stages that repair what registration
+//!      got wrong) -> refine (guided by each view's own capture)
+//!   -> reconstruct (the driver of all of the above: the light field) -> metrics
 //! io for the file formats at the edges
 //! ```
 //!
@@ -50,6 +51,7 @@ pub mod register;
 pub mod rig;
 pub mod scene;
 pub mod simulate;
+pub mod solve;
 pub mod spectrum;
 pub mod stereo;
 

@@ -9,13 +9,14 @@
 use anaglyph_core::builtin;
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
-use anaglyph_core::refine::{GuidedRefinement, ScenePriorSettings};
+use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings, COMMON_SIGNALS,
 };
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
+use anaglyph_core::solve::{ScenePriorSettings, SolveSettings, INCONSISTENCY_FACTOR};
 use anaglyph_core::spectrum::ResponseCurve;
 use anaglyph_core::stereo::{MatchingCost, MatchingNetwork};
 use std::path::Path;
@@ -52,17 +53,10 @@ fn settings<'a>(
             cost,
             max_disp: 16,
         },
-        white_reflectance: 0.95,
-        saturation_level: 0.999,
-        demux: Default::default(),
-        views: None,
-        given_disparities: given,
         automatic_search_range: false,
-        refinement: None,
-        scene_prior: None,
-        matching_image: Default::default(),
-        disputed_tolerance: None,
-        warp_kernel: Default::default(),
+        given_disparities: given,
+        solve: SolveSettings::paper(),
+        ..PipelineSettings::new(cost)
     }
 }
 
@@ -194,11 +188,14 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
                 MatchingCost::Census,
                 Some(maps.clone()),
             );
-            pipeline.refinement = refinement;
+            pipeline.solve.refinement = refinement;
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
-            assert_eq!(field.refinement, refinement);
+            assert_eq!(field.solve.refinement, refinement);
             assert_eq!(
-                field.timings.iter().any(|(stage, _)| stage == "refinement"),
+                field
+                    .timings
+                    .iter()
+                    .any(|(stage, _)| stage == "guided refinement"),
                 refinement.is_some()
             );
             let (reference, seen, mean, _) = measure(&field, &simulation, &rig);
@@ -253,15 +250,16 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
             MatchingCost::Census,
             Some(truth.clone()),
         );
-        pipeline.refinement = Some(GuidedRefinement::default());
-        pipeline.scene_prior = prior;
+        pipeline.solve.refinement = Some(GuidedRefinement::default());
+        pipeline.solve.scene_prior = prior;
+        pipeline.solve.inconsistency_factor = prior.map(|_| INCONSISTENCY_FACTOR);
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
-        assert_eq!(field.scene_prior, prior);
+        assert_eq!(field.solve.scene_prior, prior);
         let nb = field.bands.len();
         let mut missed = Vec::new();
         for (i, view) in field.views.iter().enumerate() {
-            assert_eq!(view.scene_prior.is_some(), prior.is_some());
-            if let Some(report) = view.scene_prior {
+            assert_eq!(view.solve.scene_prior.is_some(), prior.is_some());
+            if let Some(report) = view.solve.scene_prior {
                 assert!(
                     report.samples > 1000 && report.filled_pixels > 0,
                     "{report:?}"
@@ -316,7 +314,7 @@ fn guided_refinement_still_helps_when_spectra_vary_at_fixed_colour() {
             MatchingCost::Census,
             Some(truth.clone()),
         );
-        pipeline.refinement = refinement;
+        pipeline.solve.refinement = refinement;
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
         scores.push(measure(&field, &simulation, &rig));
     }
@@ -510,7 +508,7 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
             MatchingCost::Census,
             Some(truth.clone()),
         );
-        pipeline.refinement = refinement;
+        pipeline.solve.refinement = refinement;
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
         assert_eq!(field.views.len(), 9);
         assert_eq!(field.bands.len(), 9);

@@ -12,6 +12,7 @@ use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile};
 use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
+use anaglyph_core::solve::SolveSettings;
 use anaglyph_core::stereo::MatchingCost;
 use std::path::Path;
 
@@ -167,17 +168,11 @@ fn true_disparities_hold_again_after_rectification() {
             cost: MatchingCost::Census,
             max_disp: 16,
         },
-        white_reflectance: 0.95,
-        saturation_level: 0.999,
-        demux: Default::default(),
-        views: Some(vec![(0, 0), (1, 2)]),
-        given_disparities: Some(truth),
         automatic_search_range: false,
-        refinement: None,
-        scene_prior: None,
-        matching_image: Default::default(),
-        disputed_tolerance: None,
-        warp_kernel: Default::default(),
+        given_disparities: Some(truth),
+        solve: SolveSettings::paper(),
+        views: Some(vec![(0, 0), (1, 2)]),
+        ..PipelineSettings::new(MatchingCost::Census)
     };
     let rig = rig();
     let psnr = |simulation: &Simulation, rectify: bool| {
@@ -237,17 +232,11 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
             cost: MatchingCost::Learned(&network),
             max_disp: 16,
         },
-        white_reflectance: 0.95,
-        saturation_level: 0.999,
-        demux: Default::default(),
-        views: Some(vec![(0, 0)]),
-        given_disparities: None,
         automatic_search_range: false,
-        refinement: None,
-        scene_prior: None,
-        matching_image: Default::default(),
-        disputed_tolerance: None,
-        warp_kernel: Default::default(),
+        given_disparities: None,
+        solve: SolveSettings::paper(),
+        views: Some(vec![(0, 0)]),
+        ..PipelineSettings::new(MatchingCost::Census)
     };
     let rig = rig();
     // Bad-2 (%) of view r0c0 against the ideal array's truth, over the pixels inside its

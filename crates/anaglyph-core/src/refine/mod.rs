@@ -1,11 +1,6 @@
-//! Guided spectral refinement, the stage after demultiplexing (beyond the paper): each
-//! view's reflectance cube is filtered with that view's own capture as the guide
-//! ([`guided_filter`]). Before it, [`ScenePrior`] re-estimates the pixels that some
-//! cameras do not see from the statistics of those that every camera sees; before that,
-//! pixels whose warped measurements no spectrum explains keep only their own capture's
-//! ([`keep_own_where_inconsistent`]) for the prior to estimate; and first of all, the
-//! measurements the warp admitted against a source camera's map stay only where they
-//! agree with the rest ([`revert_disputed`]).
+//! Guided spectral refinement, the last stage of a view's solve (beyond the paper; see
+//! [`crate::solve`] for the stages before it): each view's reflectance cube is filtered
+//! with that view's own capture as the guide ([`guided_filter`]).
 //!
 //! Why: a view's own capture is the one measurement that needs no warping. The other
 //! cameras' measurements reach it through interpolation at fractional disparities and
@@ -14,7 +9,7 @@
 //! are well modelled as an affine function of the view's own colour (few materials per
 //! window); fitting that model by ridge regression and averaging the fits keeps the edges
 //! of the capture and averages the noise. Pixels weigh by how well one spectrum explains
-//! their warped measurements ([`confidence_weights`]), so misregistered pixels hardly
+//! their warped measurements ([`crate::solve::confidence_weights`]), so misregistered pixels hardly
 //! enter the fits. On the paper rig's tabletop at 640×480 this takes the reference view
 //! from 29.5 to 35.4 dB (README, "Refinement").
 //!
@@ -22,17 +17,9 @@
 //! capture. Out: the refined reflectance; unmeasured pixels stay NaN, and pixels whose own
 //! capture is saturated keep their demultiplexed value.
 
-mod confidence;
-mod disputed;
 mod guided_filter;
-mod inconsistent;
-mod scene_prior;
 
-pub use confidence::{confidence_weights, measurement_residuals};
-pub use disputed::{revert_disputed, DisputedReport};
 pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
-pub use inconsistent::keep_own_where_inconsistent;
-pub use scene_prior::{ScenePrior, ScenePriorReport, ScenePriorSettings};
 
 use crate::register::NormalisedView;
 use crate::{Error, Result};
@@ -47,9 +34,38 @@ pub struct GuidedRefinement {
     /// guide variance under which a window is smoothed rather than followed.
     pub epsilon: f64,
     /// Pixels weigh `1 / (1 + (ρ / σ)²)` in the fits, ρ their measurement residual and σ
-    /// this multiple of the view's median residual ([`confidence_weights`]); None: every
+    /// this multiple of the view's median residual
+    /// ([`crate::solve::confidence_weights`]); None: every
     /// measured pixel weighs the same.
     pub confidence_scale: Option<f64>,
+}
+
+impl GuidedRefinement {
+    /// Checks the numbers before any work.
+    pub fn validate(&self) -> Result<()> {
+        if self.radius == 0 {
+            return Err(Error::OutOfRange {
+                setting: "refinement radius",
+                value: 0.0,
+                expected: "at least 1 pixel".into(),
+            });
+        }
+        if !(self.epsilon > 0.0) || !self.epsilon.is_finite() {
+            return Err(Error::OutOfRange {
+                setting: "refinement epsilon",
+                value: self.epsilon,
+                expected: "a finite value > 0".into(),
+            });
+        }
+        match self.confidence_scale {
+            Some(scale) if !(scale > 0.0) || !scale.is_finite() => Err(Error::OutOfRange {
+                setting: "refinement confidence",
+                value: scale,
+                expected: "a finite value > 0".into(),
+            }),
+            _ => Ok(()),
+        }
+    }
 }
 
 impl Default for GuidedRefinement {

@@ -26,7 +26,7 @@
 //! surface the views' maps pick different periods, each right up to the period, and the
 //! source-map test would mask half the array; but the reference's map may be the wrong
 //! one. [`Gathered::disputed`] marks them, and demultiplexing keeps them only where they
-//! agree with the rest ([`crate::refine::revert_disputed`]).
+//! agree with the rest ([`crate::solve::DisputedMeasurements`]).
 
 use super::ArrayGeometry;
 use crate::{Error, Result};

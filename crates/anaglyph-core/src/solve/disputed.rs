@@ -1,5 +1,5 @@
 //! Disputed measurements are kept only where they agree with the rest (beyond the paper).
-//! Runs right after demultiplexing, before [`super::keep_own_where_inconsistent`].
+//! Runs right after demultiplexing, before [`super::InconsistentPixels`].
 //!
 //! Why: on a repetitive surface each view's registration picks one of several disparities
 //! a whole period apart, and different views pick different ones. The warp's visibility
@@ -21,10 +21,33 @@
 //! knots and their residuals. Out: measurements, spectra and residuals of the pixels whose
 //! disputed measurements disagree, replaced in place by the solve without them.
 
-use crate::demux::{demultiplex_as, DemuxOptions};
+use super::{check_at_least, measurement_residuals, median_of_complete, SolveStage, ViewSolve};
+use crate::demux::demultiplex_as;
 use crate::{Error, Result};
 use serde::Serialize;
-use std::ops::Range;
+
+/// The stage: disputed measurements kept where the residual with them stays within
+/// `tolerance` × the larger of the residual without them and the view's noise floor.
+#[derive(Debug, Clone, Copy)]
+pub struct DisputedMeasurements {
+    pub tolerance: f64,
+}
+
+impl SolveStage for DisputedMeasurements {
+    fn name(&self) -> &'static str {
+        "disputed measurements"
+    }
+
+    fn needs_residuals(&self) -> bool {
+        true
+    }
+
+    fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()> {
+        let report = revert_disputed(solve, self.tolerance)?;
+        solve.report.disputed = Some(report);
+        Ok(())
+    }
+}
 
 /// What [`revert_disputed`] did to a view.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -38,49 +61,22 @@ pub struct DisputedReport {
 /// Solves every pixel with a disputed measurement again without its disputed cameras'
 /// rows, and keeps that solve where the residual with them exceeds `tolerance` × the
 /// larger of the residual without them and the median residual of the completely measured
-/// pixels. `camera_rows[k]` are camera k's rows of C; `solved` / `options` the knots and
-/// solve that made `spectra`.
-#[allow(clippy::too_many_arguments)]
-pub fn revert_disputed(
-    c: &[f64],
-    rows: usize,
-    camera_rows: &[Range<usize>],
-    disputed: &[bool],
-    measurements: &mut [f32],
-    spectra: &mut [f32],
-    residuals: &mut [f32],
-    tolerance: f64,
-    (solved, options): (Range<usize>, &DemuxOptions),
-) -> Result<DisputedReport> {
-    let knots = solved.len();
-    let pixels = residuals.len();
-    let cameras = camera_rows.len();
-    if rows == 0
-        || cameras == 0
-        || camera_rows.iter().any(|r| r.end > rows)
-        || disputed.len() != pixels * cameras
-        || measurements.len() != pixels * rows
-        || spectra.len() != pixels * knots
-        || solved.end * rows > c.len()
-    {
+/// pixels. The solve must hold every knot of C and its residuals.
+pub fn revert_disputed(solve: &mut ViewSolve<'_>, tolerance: f64) -> Result<DisputedReport> {
+    check_at_least("disputed tolerance", tolerance, 1.0)?;
+    solve.check_full("disputed measurements")?;
+    let context = solve.context;
+    let (rows, knots) = (context.sensing.rows(), solve.knots.len());
+    let cameras = context.camera_rows.len();
+    let pixels = solve.measurements.len() / rows;
+    if solve.disputed.len() != pixels * cameras {
         return Err(Error::Shape {
-            op: "disputed measurements: flags, measurements, spectra and residuals".into(),
-            got: vec![
-                disputed.len(),
-                measurements.len(),
-                spectra.len(),
-                residuals.len(),
-            ],
-            expected: vec![pixels * cameras, pixels * rows, pixels * knots, pixels],
+            op: "disputed measurements: flags against pixels × cameras".into(),
+            got: vec![solve.disputed.len()],
+            expected: vec![pixels, cameras],
         });
     }
-    if !(tolerance >= 1.0) || !tolerance.is_finite() {
-        return Err(Error::invalid(
-            "disputed measurements",
-            format!("the residual tolerance {tolerance} must be finite and at least 1"),
-        ));
-    }
-    let flags = |px: usize| &disputed[px * cameras..(px + 1) * cameras];
+    let flags = |px: usize| &solve.disputed[px * cameras..(px + 1) * cameras];
     let candidates: Vec<usize> = (0..pixels)
         .filter(|&px| flags(px).iter().any(|&f| f))
         .collect();
@@ -90,42 +86,43 @@ pub fn revert_disputed(
             dropped: 0,
         });
     }
-    let measured = |px: usize| &measurements[px * rows..(px + 1) * rows];
-    let mut complete: Vec<f32> = (0..pixels)
-        .filter(|&px| residuals[px].is_finite() && measured(px).iter().all(|m| m.is_finite()))
-        .map(|px| residuals[px])
-        .collect();
-    let floor = if complete.is_empty() {
-        0.0
-    } else {
-        let middle = complete.len() / 2;
-        *complete.select_nth_unstable_by(middle, f32::total_cmp).1
-    };
+    let residuals = solve.residuals.as_deref().unwrap_or_default();
+    let floor = median_of_complete(residuals, &solve.measurements, rows).unwrap_or(0.0);
     let mut undisputed = Vec::with_capacity(candidates.len() * rows);
     for &px in &candidates {
         let start = undisputed.len();
-        undisputed.extend_from_slice(measured(px));
+        undisputed.extend_from_slice(&solve.measurements[px * rows..(px + 1) * rows]);
         for (camera, _) in flags(px).iter().enumerate().filter(|(_, &f)| f) {
-            let range = camera_rows[camera].clone();
+            let range = context.camera_rows[camera].clone();
             undisputed[start + range.start..start + range.end].fill(f32::NAN);
         }
     }
-    let (solved_without, _) =
-        demultiplex_as::<f32, f32>(c, rows, &undisputed, None, solved, options)?;
-    let without = super::measurement_residuals(c, rows, &undisputed, &solved_without)?;
+    let (solved_without, _) = demultiplex_as::<f32, f32>(
+        context.sensing.values(),
+        rows,
+        &undisputed,
+        None,
+        solve.knots.clone(),
+        &context.options,
+    )?;
+    let without = measurement_residuals(context.sensing, &undisputed, &solved_without)?;
     let limit = tolerance as f32;
     let mut dropped = 0;
+    let residuals = solve.residuals_mut("disputed measurements")?;
+    let mut replaced = Vec::new();
     for (i, &px) in candidates.iter().enumerate() {
-        let with = residuals[px];
         // A NaN residual (nothing solved) keeps the measurements: nothing to compare.
-        if with > limit * without[i].max(floor) {
-            measurements[px * rows..(px + 1) * rows]
-                .copy_from_slice(&undisputed[i * rows..(i + 1) * rows]);
-            spectra[px * knots..(px + 1) * knots]
-                .copy_from_slice(&solved_without[i * knots..(i + 1) * knots]);
+        if residuals[px] > limit * without[i].max(floor) {
             residuals[px] = without[i];
+            replaced.push((i, px));
             dropped += 1;
         }
+    }
+    for (i, px) in replaced {
+        solve.measurements[px * rows..(px + 1) * rows]
+            .copy_from_slice(&undisputed[i * rows..(i + 1) * rows]);
+        solve.spectra[px * knots..(px + 1) * knots]
+            .copy_from_slice(&solved_without[i * knots..(i + 1) * knots]);
     }
     Ok(DisputedReport {
         pixels: candidates.len(),
@@ -136,7 +133,7 @@ pub fn revert_disputed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::refine::measurement_residuals;
+    use crate::solve::test_support::{context, demultiplexed, matrix};
 
     /// Three cameras of three channels over five knots; spectra smooth, small noise. Camera
     /// 2's measurements are disputed at every pixel: of the same surface at three pixels in
@@ -169,29 +166,16 @@ mod tests {
                 measurements.push(measure(if r >= 6 { &seen } else { &own }, r, px));
             }
         }
-        let camera_rows = [0..3, 3..6, 6..9];
         let disputed: Vec<bool> = (0..pixels * 3).map(|k| k % 3 == 2).collect();
-        let options = DemuxOptions::default();
-        let (mut spectra, _) =
-            demultiplex_as::<f32, f32>(&c, rows, &measurements, None, 0..knots, &options).unwrap();
-        let mut residuals = measurement_residuals(&c, rows, &measurements, &spectra).unwrap();
+        let sensing = matrix(rows, c);
+        let context = context(&sensing, vec![0..3, 3..6, 6..9]);
         let before = measurements.clone();
-        let report = revert_disputed(
-            &c,
-            rows,
-            &camera_rows,
-            &disputed,
-            &mut measurements,
-            &mut spectra,
-            &mut residuals,
-            2.0,
-            (0..knots, &options),
-        )
-        .unwrap();
+        let mut solve = demultiplexed(&context, measurements, disputed);
+        let report = revert_disputed(&mut solve, 2.0).unwrap();
         assert_eq!(report.pixels, pixels);
         assert_eq!(report.dropped, pixels / 4);
         for px in 0..pixels {
-            let row = &measurements[px * rows..(px + 1) * rows];
+            let row = &solve.measurements[px * rows..(px + 1) * rows];
             if !wrong(px) {
                 assert_eq!(row, &before[px * rows..(px + 1) * rows], "pixel {px}");
             } else {
@@ -199,7 +183,7 @@ mod tests {
                 assert!(row[..6].iter().all(|m| m.is_finite()), "pixel {px}");
                 // The solve without camera 2 recovers the pixel's own spectrum.
                 let truth = spectrum(px, false);
-                let got = &spectra[px * knots..(px + 1) * knots];
+                let got = &solve.spectra[px * knots..(px + 1) * knots];
                 let rms = (got
                     .iter()
                     .zip(&truth)
@@ -214,17 +198,18 @@ mod tests {
 
     #[test]
     fn bad_input_is_an_error() {
-        let c = vec![1.0; 6];
-        let options = DemuxOptions::default();
-        let (mut m, mut s, mut r) = (vec![0.5f32; 6], vec![0.5f32; 2], vec![0.0f32; 2]);
-        let flags = vec![true; 4];
-        let wrong_flags = vec![true; 3];
-        let rows = [0..2, 2..3];
-        let call = |flags: &[bool], tolerance: f64, m: &mut [f32], s: &mut [f32], r: &mut [f32]| {
-            revert_disputed(&c, 3, &rows, flags, m, s, r, tolerance, (0..1, &options))
-        };
-        assert!(call(&wrong_flags, 2.0, &mut m, &mut s, &mut r).is_err());
-        assert!(call(&flags, 0.5, &mut m, &mut s, &mut r).is_err());
-        assert!(call(&flags, f64::NAN, &mut m, &mut s, &mut r).is_err());
+        let sensing = matrix(3, vec![1.0; 3]);
+        let context = context(&sensing, vec![0..2, 2..3]);
+        let solve = |flags: usize| demultiplexed(&context, vec![0.5f32; 6], vec![true; flags]);
+        assert!(matches!(
+            revert_disputed(&mut solve(3), 2.0),
+            Err(Error::Shape { .. })
+        ));
+        for tolerance in [0.5, f64::NAN] {
+            assert!(matches!(
+                revert_disputed(&mut solve(4), tolerance),
+                Err(Error::OutOfRange { .. })
+            ));
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! Pixels whose warped measurements no single spectrum explains keep only their own
 //! capture's (beyond the paper). Runs after demultiplexing, before the scene prior
-//! ([`super::ScenePrior`]), which then estimates them from what is left.
+//! ([`super::ScenePriorStage`]), which then estimates them from what is left.
 //!
 //! Why: a pixel that registration got wrong gathers the other cameras' measurements of
 //! other surfaces. Demultiplexing fits one spectrum to all of them, and the compromise is
@@ -18,73 +18,70 @@
 //! capture, its spectra on all knots and their residuals. Out: the measurements, spectra
 //! and residuals of the inconsistent pixels replaced in place; how many there were.
 
-use crate::demux::{demultiplex_as, DemuxOptions};
-use crate::{Error, Result};
-use std::ops::Range;
+use super::{check_at_least, measurement_residuals, median_of_complete, SolveStage, ViewSolve};
+use crate::demux::demultiplex_as;
+use crate::Result;
+
+/// The stage: pixels whose residual exceeds `factor` × the noise floor keep only their own
+/// capture's measurements.
+#[derive(Debug, Clone, Copy)]
+pub struct InconsistentPixels {
+    pub factor: f64,
+}
+
+impl SolveStage for InconsistentPixels {
+    fn name(&self) -> &'static str {
+        "inconsistent pixels"
+    }
+
+    fn needs_residuals(&self) -> bool {
+        true
+    }
+
+    fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()> {
+        let changed = keep_own_where_inconsistent(solve, self.factor)?;
+        solve.report.inconsistent_pixels = Some(changed);
+        Ok(())
+    }
+}
 
 /// Masks the other cameras' measurements of every pixel whose residual exceeds `factor`
 /// times the median residual of the completely measured pixels, and solves those pixels
-/// again from `own` rows alone (`solved`: the knots `spectra` holds, `options`: the solve
-/// that made them). `residuals` are recomputed for the changed pixels. Returns how many
-/// pixels changed; none when no pixel is completely measured.
-#[allow(clippy::too_many_arguments)]
-pub fn keep_own_where_inconsistent(
-    c: &[f64],
-    rows: usize,
-    own: Range<usize>,
-    measurements: &mut [f32],
-    spectra: &mut [f32],
-    residuals: &mut [f32],
-    factor: f64,
-    (solved, options): (Range<usize>, &DemuxOptions),
-) -> Result<usize> {
-    let knots = solved.len();
-    let pixels = residuals.len();
-    if rows == 0
-        || own.end > rows
-        || own.is_empty()
-        || measurements.len() != pixels * rows
-        || spectra.len() != pixels * knots
-        || solved.end * rows > c.len()
-    {
-        return Err(Error::Shape {
-            op: "inconsistent pixels: measurements, spectra and residuals".into(),
-            got: vec![measurements.len(), spectra.len(), residuals.len()],
-            expected: vec![pixels * rows, pixels * knots, pixels],
-        });
-    }
-    if !(factor > 0.0) || !factor.is_finite() {
-        return Err(Error::invalid(
-            "inconsistent pixels",
-            format!("the residual factor {factor} must be positive and finite"),
-        ));
-    }
-    let measured = |px: usize| &measurements[px * rows..(px + 1) * rows];
-    let mut complete: Vec<f32> = (0..pixels)
-        .filter(|&px| residuals[px].is_finite() && measured(px).iter().all(|m| m.is_finite()))
-        .map(|px| residuals[px])
-        .collect();
-    if complete.is_empty() {
+/// again from the view's own rows alone; their residuals are recomputed. Returns how many
+/// pixels changed; none when no pixel is completely measured. The solve must hold every
+/// knot of C and its residuals.
+pub fn keep_own_where_inconsistent(solve: &mut ViewSolve<'_>, factor: f64) -> Result<usize> {
+    check_at_least("inconsistency factor", factor, f64::MIN_POSITIVE)?;
+    solve.check_full("inconsistent pixels")?;
+    let context = solve.context;
+    let rows = context.sensing.rows();
+    let knots = solve.knots.len();
+    let own = context.camera_rows[solve.camera].clone();
+    let residuals = solve.residuals.as_deref().unwrap_or_default();
+    let Some(median) = median_of_complete(residuals, &solve.measurements, rows) else {
         return Ok(0);
-    }
-    let middle = complete.len() / 2;
-    let median = *complete.select_nth_unstable_by(middle, f32::total_cmp).1;
+    };
     let limit = factor as f32 * median;
-    let inconsistent: Vec<usize> = (0..pixels)
-        .filter(|&px| {
-            residuals[px] > limit
-                && measured(px)
+    let inconsistent: Vec<usize> = solve
+        .measurements
+        .chunks_exact(rows)
+        .zip(residuals)
+        .enumerate()
+        .filter(|(_, (measured, &residual))| {
+            residual > limit
+                && measured
                     .iter()
                     .enumerate()
                     .any(|(r, m)| m.is_finite() && !own.contains(&r))
         })
+        .map(|(px, _)| px)
         .collect();
     if inconsistent.is_empty() {
         return Ok(0);
     }
     let mut own_only = Vec::with_capacity(inconsistent.len() * rows);
     for &px in &inconsistent {
-        for (r, m) in measurements[px * rows..(px + 1) * rows]
+        for (r, m) in solve.measurements[px * rows..(px + 1) * rows]
             .iter_mut()
             .enumerate()
         {
@@ -94,12 +91,20 @@ pub fn keep_own_where_inconsistent(
             own_only.push(*m);
         }
     }
-    let (solved_again, _) = demultiplex_as::<f32, f32>(c, rows, &own_only, None, solved, options)?;
+    let (solved_again, _) = demultiplex_as::<f32, f32>(
+        context.sensing.values(),
+        rows,
+        &own_only,
+        None,
+        solve.knots.clone(),
+        &context.options,
+    )?;
     for (i, &px) in inconsistent.iter().enumerate() {
-        spectra[px * knots..(px + 1) * knots]
+        solve.spectra[px * knots..(px + 1) * knots]
             .copy_from_slice(&solved_again[i * knots..(i + 1) * knots]);
     }
-    let again = super::measurement_residuals(c, rows, &own_only, &solved_again)?;
+    let again = measurement_residuals(context.sensing, &own_only, &solved_again)?;
+    let residuals = solve.residuals_mut("inconsistent pixels")?;
     for (&px, value) in inconsistent.iter().zip(again) {
         residuals[px] = value;
     }
@@ -109,7 +114,8 @@ pub fn keep_own_where_inconsistent(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::refine::measurement_residuals;
+    use crate::solve::test_support::{context, demultiplexed, matrix};
+    use crate::Error;
 
     /// Six rows over eight knots (two cameras of three channels), smooth spectra, small
     /// noise; pixel 5's second camera reads another surface.
@@ -144,12 +150,13 @@ mod tests {
 
     #[test]
     fn a_pixel_that_gathered_another_surface_keeps_its_own_measurements() {
-        let (c, mut measurements) = scene();
+        let (c, measurements) = scene();
         let (rows, knots) = (6, 8);
-        let options = DemuxOptions::default();
-        let (mut spectra, _) =
-            demultiplex_as::<f32, f32>(&c, rows, &measurements, None, 0..knots, &options).unwrap();
-        let mut residuals = measurement_residuals(&c, rows, &measurements, &spectra).unwrap();
+        let sensing = matrix(rows, c.clone());
+        let context = context(&sensing, vec![0..3, 3..6]);
+        let before = measurements.clone();
+        let mut solve = demultiplexed(&context, measurements, vec![false; 80]);
+        let residuals = solve.residuals.clone().unwrap();
         let worst = residuals
             .iter()
             .enumerate()
@@ -157,22 +164,11 @@ mod tests {
             .unwrap()
             .0;
         assert_eq!(worst, 5, "the corrupted pixel stands out: {residuals:?}");
-        let before = measurements.clone();
-        let changed = keep_own_where_inconsistent(
-            &c,
-            rows,
-            0..3,
-            &mut measurements,
-            &mut spectra,
-            &mut residuals,
-            4.0,
-            (0..knots, &options),
-        )
-        .unwrap();
+        let changed = keep_own_where_inconsistent(&mut solve, 4.0).unwrap();
         assert_eq!(changed, 1);
         for px in 0..before.len() / rows {
             for r in 0..rows {
-                let (now, was) = (measurements[px * rows + r], before[px * rows + r]);
+                let (now, was) = (solve.measurements[px * rows + r], before[px * rows + r]);
                 if px == 5 && r >= 3 {
                     assert!(now.is_nan(), "pixel 5 row {r} is masked");
                 } else {
@@ -181,19 +177,16 @@ mod tests {
             }
         }
         // Solved from its own three channels alone, the pixel fits them again.
-        assert!(
-            residuals[5] < 1e-3,
-            "residual after the mask: {}",
-            residuals[5]
-        );
+        let residual = solve.residuals.as_ref().unwrap()[5];
+        assert!(residual < 1e-3, "residual after the mask: {residual}");
         let own_fit: f32 = (0..3)
             .map(|r| {
                 let p: f32 = c[r * knots..(r + 1) * knots]
                     .iter()
-                    .zip(&spectra[5 * knots..6 * knots])
+                    .zip(&solve.spectra[5 * knots..6 * knots])
                     .map(|(a, b)| *a as f32 * b)
                     .sum();
-                (p - measurements[5 * rows + r]).abs()
+                (p - solve.measurements[5 * rows + r]).abs()
             })
             .fold(0.0, f32::max);
         assert!(own_fit < 2e-3, "own channels reproduced within {own_fit}");
@@ -201,46 +194,25 @@ mod tests {
 
     #[test]
     fn bad_settings_and_shapes_are_refused() {
-        let (c, mut measurements) = scene();
-        let (rows, knots) = (6, 8);
-        let options = DemuxOptions::default();
-        let (mut spectra, _) =
-            demultiplex_as::<f32, f32>(&c, rows, &measurements, None, 0..knots, &options).unwrap();
-        let mut residuals = measurement_residuals(&c, rows, &measurements, &spectra).unwrap();
+        let (c, measurements) = scene();
+        let sensing = matrix(6, c);
+        let context = context(&sensing, vec![0..3, 3..6]);
+        let mut solve = demultiplexed(&context, measurements, vec![false; 80]);
         for factor in [0.0, -1.0, f64::NAN, f64::INFINITY] {
-            assert!(keep_own_where_inconsistent(
-                &c,
-                rows,
-                0..3,
-                &mut measurements,
-                &mut spectra,
-                &mut residuals,
-                factor,
-                (0..knots, &options),
-            )
-            .is_err());
+            assert!(matches!(
+                keep_own_where_inconsistent(&mut solve, factor),
+                Err(Error::OutOfRange { .. })
+            ));
         }
-        assert!(keep_own_where_inconsistent(
-            &c,
-            rows,
-            0..7,
-            &mut measurements,
-            &mut spectra,
-            &mut residuals,
-            4.0,
-            (0..knots, &options),
-        )
-        .is_err());
-        assert!(keep_own_where_inconsistent(
-            &c,
-            rows,
-            0..3,
-            &mut measurements[..rows * 10],
-            &mut spectra,
-            &mut residuals,
-            4.0,
-            (0..knots, &options),
-        )
-        .is_err());
+        solve.measurements.truncate(6 * 10);
+        assert!(matches!(
+            keep_own_where_inconsistent(&mut solve, 4.0),
+            Err(Error::Shape { .. })
+        ));
+        solve.residuals = None;
+        assert!(matches!(
+            keep_own_where_inconsistent(&mut solve, 4.0),
+            Err(Error::StageDependency { .. })
+        ));
     }
 }

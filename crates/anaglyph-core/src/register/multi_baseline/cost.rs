@@ -1,51 +1,104 @@
-//! Multi-baseline registration: one disparity per pixel of a reference view, tested
-//! against every other view of the array at once.
+//! The multi-view costs of the array's views: the occlusion-robust cost volume of a view
+//! (dot products of learned features along each other view's shift, the smallest mean over
+//! a half-array), the cost of one pixel at a fractional disparity, and the half-step costs
+//! and equiangular fit of the subpixel stage. See [`super`] for the algorithm.
 //!
-//! Each view's features come from its matching images: its common signals (merged into one
-//! feature per pixel by a [`FeatureProjection`] fitted on the first view), or its grey image.
-//!
-//! For disparity d, pixel (x, y) of the reference is compared with the learned features of
-//! view v at `(x, y) + d · shift(v)` (the array geometry, [`ArrayGeometry::shift`]); a
-//! fractional row position interpolates the two dot products, which is exact for the
-//! bilinearly interpolated feature. The cost of view v is `(1 − cos)/2`, as for a pair.
-//! Views are grouped into half-arrays (left, right, above, below the reference); the cost
-//! of (x, y, d) is the smallest mean over a half-array that sees the point, so that a
-//! surface occluded on one side is still matched on the other (Kang, Szeliski & Chai 2001,
-//! "Handling occlusions in dense multi-view stereo"). Then SGM with penalties from the
-//! reference's gradients and winner-take-all per view. The subpixel offset comes from the
-//! raw multi-view costs at whole and half-pixel steps around the winner (the latter with
-//! interpolated, renormalised features), summed over a window of the same surface, by an
-//! equiangular fit ([`crate::stereo::windowed_subpixel`] on a half-pixel grid: the
-//! parabola on SGM costs locks to whole pixels); finally each map is
-//! checked against its row and column neighbours' maps (a pixel is kept if at least one
-//! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), each failure takes
-//! whichever of its nearest valid neighbours left, right, above and below has the lowest
-//! multi-view cost at the pixel ([`fill_by_cost`]), a 5×5 median smooths the result, and
-//! regions of repetitive texture, whose costs have several equal minima, take the plane
-//! most of their disparities lie on, unless most of the view's row and column neighbours
-//! find another ([`region_planes`], [`vote_with_neighbours`], [`apply_region_planes`]).
+//! In: every view's compact features, the array's positions and geometry. Out: cost
+//! volumes, per-pixel costs and subpixel maps. Each product has a portable build and an
+//! AVX-512 BF16 one, tested to agree.
 
-use super::agreement::neighbours as array_neighbours;
-use super::compact_features::{
+use crate::register::compact_features::{
     dot, dot_widened, widen, CompactFeatures, DotKernel, NeighbourProducts,
 };
 #[cfg(target_arch = "x86_64")]
-use super::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
-use super::feature_projection::FeatureProjection;
-use super::RegistrationSettings;
-use super::{
-    apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
-    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, GridImage, RegionPlane,
-    Registration, SUBPIXEL_WINDOW_RADIUS,
-};
-use crate::stereo::{
-    median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, CostVolume,
-    FeatureMap, GreyImage, MatchSettings, MatchingCost,
-};
-use crate::{Error, Result};
+use crate::register::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
+use crate::register::ArrayGeometry;
+use crate::stereo::CostVolume;
 use rayon::prelude::*;
 use std::ops::Range;
-use std::time::Instant;
+
+/// Multi-view costs of the array's views at any point: a view's cost volume, its
+/// half-step costs, and the cost of one of its pixels at a fractional disparity.
+pub(super) struct PointCosts<'a> {
+    features: &'a [CompactFeatures],
+    neighbours: Vec<NeighbourProducts>,
+    /// Per view, every other view with its shift and half-arrays ([`others_of`]).
+    others: Vec<Vec<(usize, (f64, f64), [bool; HALVES])>>,
+    kernel: DotKernel,
+    pub positions: &'a [(usize, usize)],
+    pub geometry: &'a ArrayGeometry,
+}
+
+impl<'a> PointCosts<'a> {
+    pub fn new(
+        features: &'a [CompactFeatures],
+        positions: &'a [(usize, usize)],
+        geometry: &'a ArrayGeometry,
+    ) -> Self {
+        // The half steps' interpolated features take their norms from these.
+        let kernel = DotKernel::for_channels(features[0].channels);
+        PointCosts {
+            features,
+            neighbours: neighbour_products(kernel, features),
+            others: (0..features.len())
+                .map(|i| others_of(positions, i, geometry))
+                .collect(),
+            kernel,
+            positions,
+            geometry,
+        }
+    }
+
+    /// Width and height of the views.
+    pub fn size(&self) -> (usize, usize) {
+        (self.features[0].width, self.features[0].height)
+    }
+
+    /// View `reference`'s cost volume over `[0, max_disp)`.
+    pub fn volume(&self, reference: usize, max_disp: usize) -> CostVolume {
+        multi_view_cost_volume(
+            self.features,
+            self.positions,
+            reference,
+            self.geometry,
+            max_disp,
+        )
+    }
+
+    /// View `reference`'s costs at every pixel's disparity + [`HALF_STEPS`].
+    pub fn half_steps(&self, reference: usize, disparity: &[f32]) -> Vec<[f32; 4]> {
+        half_step_costs(
+            self.features,
+            &self.neighbours,
+            self.positions,
+            reference,
+            self.geometry,
+            disparity,
+        )
+    }
+
+    /// The cost of view `reference`'s pixel (x, y) at a fractional disparity d.
+    pub fn at(&self, reference: usize) -> impl Fn(usize, usize, f32) -> f32 + '_ {
+        move |x: usize, y: usize, d: f32| {
+            let job = RowJob {
+                features: self.features,
+                others: &self.others[reference],
+                reference: &self.features[reference],
+                y,
+            };
+            match self.kernel {
+                // The dot products of the neighbours' products, for the same rounding.
+                #[cfg(target_arch = "x86_64")]
+                DotKernel::Avx512Bf16 => cost_at(&job, &self.neighbours, x, d as f64, |a, b| {
+                    // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
+                    // features have a multiple of 32 channels (`for_channels`).
+                    unsafe { dot_avx512_bf16(a, b) }
+                }),
+                _ => cost_at(&job, &self.neighbours, x, d as f64, dot),
+            }
+        }
+    }
+}
 
 /// Half-arrays: views left of, right of, above and below the reference.
 const HALVES: usize = 4;
@@ -615,7 +668,7 @@ fn half_step_row_avx512_bf16(
 /// A finer grid shrinks the fit's bias towards its samples: on the tabletop at 640×480 the
 /// bias at a true offset of 0.3 px fell from −0.07 to −0.02 px and r0c0 gained 0.3 dB
 /// (the half steps cost 5 s for 8 views).
-fn half_step_subpixel(
+pub(super) fn half_step_subpixel(
     raw: &CostVolume,
     half: &[[f32; 4]],
     disparity: &[f32],
@@ -668,211 +721,10 @@ fn half_step_subpixel(
         .collect()
 }
 
-/// The images a view's features come from: its matching images if it has any, else its
-/// grey image.
-fn matching_images(view: &GridImage) -> Vec<&GreyImage> {
-    if view.matching.is_empty() {
-        vec![&view.image]
-    } else {
-        view.matching.iter().collect()
-    }
-}
-
-/// Multi-baseline registration of every view (see the module docs).
-pub fn multi_baseline_disparities(
-    images: &[GridImage],
-    geometry: &ArrayGeometry,
-    settings: &RegistrationSettings<'_>,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Registration> {
-    let network = match settings.cost {
-        MatchingCost::Learned(network) if !network.is_accurate() => network,
-        other => {
-            return Err(Error::invalid(
-                "multi-baseline registration",
-                format!(
-                    "needs the fast learned cost (its features compare across views); got {} \
-                     (use pairwise registration for it)",
-                    other.name()
-                ),
-            ))
-        }
-    };
-    let (w, h) = (images[0].image.width, images[0].image.height);
-    let dm = settings.max_disp;
-    let positions: Vec<(usize, usize)> = images.iter().map(|v| (v.row, v.col)).collect();
-    let chain = MatchSettings::for_cost(&settings.cost, dm);
-    let mut timings = Vec::new();
-    let clock = Instant::now();
-    // The first view's maps fit the projection and are then merged themselves, not
-    // computed again (a ninth of the network's work for three signals).
-    let (projection, mut first_maps) = if matching_images(&images[0]).len() > 1 {
-        let maps: Vec<FeatureMap> = matching_images(&images[0])
-            .into_iter()
-            .map(|image| tower_features(network, image))
-            .collect();
-        let dims = maps[0].channels;
-        let fitted = FeatureProjection::fit(&maps, dims)?;
-        tracing::info!(
-            "feature projection keeps {:.4} of the energy",
-            fitted.energy_kept
-        );
-        (Some(fitted), Some(maps))
-    } else {
-        (None, None)
-    };
-    let features: Vec<CompactFeatures> = images
-        .iter()
-        .map(|v| -> Result<CompactFeatures> {
-            let map = match (&projection, first_maps.take()) {
-                (Some(p), Some(maps)) => p.merged_maps(maps)?,
-                (Some(p), None) => p.merged_features(network, &matching_images(v))?,
-                (None, _) => tower_features(network, matching_images(v)[0]),
-            };
-            let mut compact = CompactFeatures::from(map);
-            if let Some(measured) = &v.measured {
-                let c = compact.channels;
-                for (feature, _) in compact
-                    .data
-                    .chunks_exact_mut(c)
-                    .zip(measured)
-                    .filter(|(_, m)| !**m)
-                {
-                    feature.fill(0); // cosine 0 with everything: a neutral cost of 0.5
-                }
-            }
-            Ok(compact)
-        })
-        .collect::<Result<_>>()?;
-    // The half steps' interpolated features take their norms from these.
-    let kernel = DotKernel::for_channels(features[0].channels);
-    let neighbours = neighbour_products(kernel, &features);
-    timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
-    let flat = GreyImage {
-        width: w,
-        height: h,
-        data: vec![0.0; w * h],
-    };
-    let (mut cost_seconds, mut refine_seconds) = (0.0, 0.0);
-    let mut raw = Vec::with_capacity(images.len());
-    let mut ambiguities = Vec::with_capacity(images.len());
-    for i in 0..images.len() {
-        let clock = Instant::now();
-        let volume = multi_view_cost_volume(&features, &positions, i, geometry, dm);
-        cost_seconds += clock.elapsed().as_secs_f64();
-        let clock = Instant::now();
-        ambiguities.push(Ambiguity::of_volume(&volume));
-        let disparity = match &chain.sgm {
-            Some(p) => winner_take_all(&semi_global_matching(
-                &volume,
-                &unit_range(&images[i].image),
-                &flat,
-                p,
-            )),
-            None => winner_take_all(&volume),
-        };
-        let half = half_step_costs(&features, &neighbours, &positions, i, geometry, &disparity);
-        raw.push(half_step_subpixel(
-            &volume,
-            &half,
-            &disparity,
-            SUBPIXEL_WINDOW_RADIUS,
-        ));
-        refine_seconds += clock.elapsed().as_secs_f64();
-        progress(i + 1, images.len());
-    }
-    timings.push(("multi-view cost".to_string(), cost_seconds));
-    timings.push(("SGM + subpixel".to_string(), refine_seconds));
-    let clock = Instant::now();
-    let others: Vec<_> = (0..images.len())
-        .map(|i| others_of(&positions, i, geometry))
-        .collect();
-    let cost_of = |i: usize| {
-        let (features, others, neighbours) = (&features, &others[i], &neighbours);
-        move |x: usize, y: usize, d: f32| {
-            let job = RowJob {
-                features,
-                others,
-                reference: &features[i],
-                y,
-            };
-            match kernel {
-                // The dot products of the neighbours' products, for the same rounding.
-                #[cfg(target_arch = "x86_64")]
-                DotKernel::Avx512Bf16 => cost_at(&job, neighbours, x, d as f64, |a, b| {
-                    // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
-                    // features have a multiple of 32 channels (`for_channels`).
-                    unsafe { dot_avx512_bf16(a, b) }
-                }),
-                _ => cost_at(&job, neighbours, x, d as f64, dot),
-            }
-        }
-    };
-    // Cross-check, fill, median; then each view's ambiguous regions and their planes.
-    let smoothed: Vec<(Vec<f32>, Vec<RegionPlane>)> = (0..images.len())
-        .map(|i| {
-            let mut checked = confirmed_by_neighbours(&raw, &positions, geometry, i, w, h);
-            fill_by_cost(&mut checked, w, h, &cost_of(i));
-            let map = smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h);
-            let regions = region_planes(&map, &ambiguities[i]);
-            (map, regions)
-        })
-        .collect();
-    let on_own_planes: Vec<(Vec<f32>, usize)> = smoothed
-        .iter()
-        .enumerate()
-        .map(|(i, (map, regions))| {
-            let mut planar = map.clone();
-            let moved = apply_region_planes(&mut planar, &ambiguities[i], dm, regions, &cost_of(i));
-            (planar, moved)
-        })
-        .collect();
-    // Each view's planes put to the vote of its row and column neighbours' planar maps.
-    let (disparities, moved): (Vec<Vec<f32>>, Vec<usize>) = smoothed
-        .into_iter()
-        .enumerate()
-        .map(|(i, (map, mut regions))| {
-            let voters: Vec<(&[f32], (f64, f64))> = array_neighbours(&positions, geometry, i)
-                .into_iter()
-                .map(|(j, _)| {
-                    let shift = geometry.shift(positions[j], positions[i]);
-                    (on_own_planes[j].0.as_slice(), shift)
-                })
-                .collect();
-            let changed = vote_with_neighbours(&mut regions, &map, w, h, &voters);
-            let (planar, replaced) = if changed == 0 {
-                on_own_planes[i].clone()
-            } else {
-                let mut planar = map;
-                let moved =
-                    apply_region_planes(&mut planar, &ambiguities[i], dm, &regions, &cost_of(i));
-                (planar, moved)
-            };
-            tracing::info!(
-                "view r{}c{}: {} ambiguous regions ({changed} of them changed by the \
-                 neighbours' vote), {replaced} pixels moved to their planes",
-                images[i].row,
-                images[i].col,
-                regions.len()
-            );
-            (planar, replaced)
-        })
-        .unzip();
-    drop((features, neighbours));
-    timings.push((
-        "cross-check, fill, median, planes".to_string(),
-        clock.elapsed().as_secs_f64(),
-    ));
-    Ok(Registration {
-        disparities,
-        timings,
-        moved_to_planes: Some(moved),
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stereo::{winner_take_all, FeatureMap};
 
     /// Random unit features; view v is view 0 shifted by its disparity along the geometry.
     #[test]

@@ -1,0 +1,132 @@
+//! The first stage: rectification of the array when its cameras carry calibrations
+//! ([`crate::rectify`]), with warnings about what no image warp can correct.
+//!
+//! In: the rig and its captures. Out: the rectified captures and the plan (None: the
+//! captures carry no calibrations, so they are taken as already rectified).
+
+use super::{ArrayCaptures, CameraCapture, RunLog, Stage, SATURATION_WARNING};
+use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
+use crate::rig::Rig;
+use crate::{Error, Result};
+
+/// Rectified captures and how they were rectified.
+pub(super) struct RectifiedArray {
+    pub captures: ArrayCaptures,
+    pub plan: Rectification,
+}
+
+/// Rectifies `captures` when their cameras carry calibrations (all or none must).
+pub(super) fn rectify_array(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    saturation_level: f32,
+    log: &mut RunLog,
+    progress: &super::Progress<'_>,
+) -> Result<Option<RectifiedArray>> {
+    let (with, without): (Vec<&CameraCapture>, Vec<&CameraCapture>) = captures
+        .cameras
+        .iter()
+        .partition(|c| c.calibration.is_some());
+    if with.is_empty() {
+        return Ok(None);
+    }
+    if !without.is_empty() {
+        return Err(Error::invalid(
+            "rectification",
+            format!(
+                "cameras {} have a calibration but {} have none: give every camera one (or \
+                 none, for captures that are already rectified)",
+                camera_names(&with),
+                camera_names(&without)
+            ),
+        ));
+    }
+    let clock = std::time::Instant::now();
+    let models = captures
+        .cameras
+        .iter()
+        .filter_map(|c| c.calibration.clone().map(|m| (c.row, c.col, m)))
+        .collect();
+    let plan = Rectification::plan(models, captures.width, captures.height)?;
+    let total = captures.cameras.len();
+    let mut cameras = Vec::with_capacity(total);
+    for (k, cam) in captures.cameras.iter().enumerate() {
+        cameras.push(CameraCapture {
+            row: cam.row,
+            col: cam.col,
+            capture: plan.resample(k, &cam.capture, saturation_level)?,
+            white: cam.white.clone(),
+            exposure: cam.exposure,
+            calibration: cam.calibration.clone(),
+        });
+        progress(Stage::Rectification, k + 1, total);
+    }
+    let rectified = ArrayCaptures {
+        width: captures.width,
+        height: captures.height,
+        cameras,
+    };
+    log.warnings
+        .extend(rectification_warnings(rig, &plan, &rectified));
+    log.timings
+        .push(("rectification".to_string(), clock.elapsed().as_secs_f64()));
+    Ok(Some(RectifiedArray {
+        captures: rectified,
+        plan,
+    }))
+}
+
+fn camera_names(list: &[&CameraCapture]) -> String {
+    list.iter()
+        .map(|c| format!("r{}c{}", c.row, c.col))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// What rectification cannot correct: optical centres off the grid, baselines that
+/// disagree with the rig, frames that reach outside the captures.
+fn rectification_warnings(
+    rig: &Rig,
+    plan: &Rectification,
+    rectified: &ArrayCaptures,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let offset = plan.worst_grid_offset();
+    if offset > GRID_OFFSET_WARNING {
+        warnings.push(format!(
+            "rectification: an optical centre lies {:.1} % of the baseline off the camera \
+             grid; no image warp removes that parallax (about that fraction of each disparity)",
+            100.0 * offset
+        ));
+    }
+    let [bx, by] = plan.baseline_mm;
+    let (rig_bx, rig_by) = (
+        rig.file.baseline_mm.horizontal,
+        rig.file.baseline_mm.vertical,
+    );
+    if bx > 0.0 && by > 0.0 && rig_bx > 0.0 && rig_by > 0.0 {
+        let ratio = (by / bx) / (rig_by / rig_bx);
+        if (ratio - 1.0).abs() > GRID_OFFSET_WARNING {
+            warnings.push(format!(
+                "rectification: the calibrated baselines are {bx:.2} x {by:.2} but the rig \
+                 says {rig_bx} x {rig_by}; registration uses the rig's ratio"
+            ));
+        }
+    }
+    let cropped: f64 = rectified
+        .cameras
+        .iter()
+        .map(|c| {
+            c.capture.data.iter().filter(|v| v.is_nan()).count() as f64
+                / c.capture.data.len().max(1) as f64
+        })
+        .fold(0.0, f64::max);
+    if cropped > SATURATION_WARNING {
+        warnings.push(format!(
+            "rectification: up to {:.1} % of a camera's rectified frame lies outside its \
+             capture (not measured)",
+            100.0 * cropped
+        ));
+    }
+    warnings
+}

@@ -1,0 +1,155 @@
+//! The third stage: a disparity map per camera, from registration of the calibrated
+//! captures ([`crate::register`]) or given (e.g. the simulator's truth), and how well each
+//! view's map agrees with its neighbours' (no truth needed).
+//!
+//! In: the rig, its captures in C's units and the settings. Out: the maps (disparity per
+//! column step, NaN where unknown), the search range when it was estimated, the common
+//! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
+
+use super::{ArrayCaptures, CalibratedArray, PipelineSettings, RunLog, Stage};
+use crate::register::{
+    common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
+    register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage, RegistrationMode,
+    SearchRange, COMMON_SIGNALS,
+};
+use crate::rig::Rig;
+use crate::stereo::GreyImage;
+use crate::{Error, Result};
+
+/// The array's disparity maps and what registration reports about them.
+#[derive(Default)]
+pub(super) struct RegisteredArray {
+    /// Per camera (rig order).
+    pub disparities: Vec<Vec<f32>>,
+    pub search_range: Option<SearchRange>,
+    pub common_signals: Option<Vec<CommonSignal>>,
+    pub moved_to_planes: Option<Vec<usize>>,
+    /// Per camera: the fraction of its disparities a neighbour's map confirms (NaN: none
+    /// finite).
+    pub agreement: Vec<f64>,
+}
+
+pub(super) fn register_array(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    calibrated: &CalibratedArray,
+    settings: &PipelineSettings<'_>,
+    log: &mut RunLog,
+    progress: &super::Progress<'_>,
+) -> Result<RegisteredArray> {
+    let geometry = ArrayGeometry::of_rig(rig);
+    let mut registered = match &settings.given_disparities {
+        Some(given) => given_maps(given, rig, captures)?,
+        None => estimate_maps(captures, calibrated, &geometry, settings, log, progress)?,
+    };
+    let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
+    registered.agreement = neighbour_agreement(
+        &registered.disparities,
+        &positions,
+        &geometry,
+        captures.width,
+        captures.height,
+    );
+    Ok(registered)
+}
+
+/// The given maps, checked against the rig and the captures' size.
+fn given_maps(given: &[Vec<f32>], rig: &Rig, captures: &ArrayCaptures) -> Result<RegisteredArray> {
+    let (w, h) = (captures.width, captures.height);
+    if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
+        return Err(Error::Shape {
+            op: "given disparities: maps × pixels".into(),
+            got: vec![given.len(), given.first().map_or(0, Vec::len)],
+            expected: vec![rig.cameras.len(), w * h],
+        });
+    }
+    Ok(RegisteredArray {
+        disparities: given.to_vec(),
+        ..Default::default()
+    })
+}
+
+/// Registration of the captures, over an estimated search range when asked.
+fn estimate_maps(
+    captures: &ArrayCaptures,
+    calibrated: &CalibratedArray,
+    geometry: &ArrayGeometry,
+    settings: &PipelineSettings<'_>,
+    log: &mut RunLog,
+    progress: &super::Progress<'_>,
+) -> Result<RegisteredArray> {
+    let (matching, common) = matching_images(calibrated, settings)?;
+    let images = grid_images(captures, matching);
+    let mut registration_settings = settings.registration;
+    let mut search_range = None;
+    if settings.automatic_search_range {
+        let range = estimate_search_range(&images, geometry, &registration_settings)?;
+        registration_settings.max_disp = range.max_disp;
+        log.timings
+            .push(("search range".to_string(), range.seconds));
+        search_range = Some(range);
+    }
+    let registration =
+        register_views(&images, geometry, &registration_settings, &|done, total| {
+            progress(Stage::Registration, done, total)
+        })?;
+    for (name, seconds) in &registration.timings {
+        log.timings
+            .push((format!("registration: {name}"), *seconds));
+    }
+    Ok(RegisteredArray {
+        disparities: registration.disparities,
+        search_range,
+        common_signals: common,
+        moved_to_planes: registration.moved_to_planes,
+        agreement: Vec::new(),
+    })
+}
+
+/// Per camera, the images multi-baseline registration compares by (empty: luminance),
+/// and the common signals they come from.
+fn matching_images(
+    calibrated: &CalibratedArray,
+    settings: &PipelineSettings<'_>,
+) -> Result<(Vec<Vec<GreyImage>>, Option<Vec<CommonSignal>>)> {
+    let views = &calibrated.views;
+    let by_common_signals = settings.matching_image == MatchingImage::CommonSignals
+        && settings.registration.mode == RegistrationMode::MultiBaseline;
+    if !by_common_signals {
+        return Ok((vec![Vec::new(); views.len()], None));
+    }
+    let channels: Vec<usize> = views.iter().map(|v| v.channels).collect();
+    let signals = common_signals(&calibrated.sensing, &channels, COMMON_SIGNALS)?;
+    let images: Vec<Vec<GreyImage>> = signals
+        .iter()
+        .map(|signal| common_signal_images(views, signal))
+        .collect();
+    let per_camera = (0..views.len())
+        .map(|k| images.iter().map(|per_view| per_view[k].clone()).collect())
+        .collect();
+    Ok((per_camera, Some(signals)))
+}
+
+/// Each camera's grey image at its grid place, with its matching images and the pixels
+/// it measured (None: all).
+fn grid_images(captures: &ArrayCaptures, matching: Vec<Vec<GreyImage>>) -> Vec<GridImage> {
+    captures
+        .grey_images()
+        .into_iter()
+        .zip(matching)
+        .zip(&captures.cameras)
+        .map(|((image, matching), cam)| GridImage {
+            row: cam.row,
+            col: cam.col,
+            image,
+            matching,
+            measured: cam.capture.data.iter().any(|v| v.is_nan()).then(|| {
+                cam.capture
+                    .data
+                    .chunks_exact(cam.capture.channels)
+                    .map(|p| p.iter().all(|v| !v.is_nan()))
+                    .collect()
+            }),
+        })
+        .collect()
+}

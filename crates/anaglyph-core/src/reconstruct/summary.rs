@@ -1,0 +1,49 @@
+//! A reconstructed view as a JSON-friendly record (everything but the images), as the
+//! manifest lists it.
+
+use super::ReconstructedView;
+use crate::demux::DemuxReport;
+use crate::register::Visibility;
+use crate::solve::{DisputedReport, ScenePriorReport};
+use serde::Serialize;
+
+/// The result of [`super::reconstruct`] for one view, without its images.
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewSummary {
+    pub row: usize,
+    pub col: usize,
+    pub visibility: Visibility,
+    pub demux: DemuxReport,
+    /// Smallest and largest finite disparity.
+    pub disparity_range: [f32; 2],
+    pub neighbour_agreement: Option<f64>,
+    pub unmeasured_pixels: usize,
+    pub median_residual: Option<f64>,
+    pub disputed: Option<DisputedReport>,
+    pub inconsistent_pixels: Option<usize>,
+    pub scene_prior: Option<ScenePriorReport>,
+    pub moved_to_planes: Option<usize>,
+}
+
+impl ReconstructedView {
+    pub fn summary(&self) -> ViewSummary {
+        let finite = self.disparity.iter().filter(|v| v.is_finite());
+        let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
+            [a.min(v), b.max(v)]
+        });
+        ViewSummary {
+            row: self.row,
+            col: self.col,
+            visibility: self.visibility.clone(),
+            demux: self.solve.demux.clone(),
+            disparity_range: range,
+            neighbour_agreement: self.neighbour_agreement,
+            unmeasured_pixels: self.solve.demux.unmeasured_pixels,
+            median_residual: self.solve.median_residual,
+            disputed: self.solve.disputed,
+            inconsistent_pixels: self.solve.inconsistent_pixels,
+            scene_prior: self.solve.scene_prior,
+            moved_to_planes: self.moved_to_planes,
+        }
+    }
+}
