@@ -1,4 +1,4 @@
-//! The light-field quality table of the README: the paper rig (2×4, filters chosen by
+//! The light-field quality table of the README and docs/reconstruction.md: the paper rig (2×4, filters chosen by
 //! cond(C), f = 1800 px) renders each preset scene; every view is reconstructed with the
 //! simulator's true disparities (the registration ceiling), pairwise registration and
 //! multi-baseline registration; the reference view r0c0 and the mean over all views are

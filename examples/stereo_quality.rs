@@ -1,4 +1,4 @@
-//! The stereo quality table of the README: every matching cost, raw (winner-take-all) and
+//! The stereo quality table of docs/stereo.md: every matching cost, raw (winner-take-all) and
 //! with its full refinement chain, on held-out simulated pairs (scene seeds never used in
 //! training or validation), heterogeneous (different gels or channels) and homogeneous
 //! (same gel and channel). Prints a Markdown table of bad-2.0, average error, density and

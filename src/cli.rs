@@ -3,9 +3,8 @@
 
 use anaglyph_core::demux::Solver;
 use anaglyph_core::filters::SelectionCriterion;
-use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::reconstruct::{DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE};
 use anaglyph_core::rig::OutOfBand;
-use anaglyph_core::solve::{ScenePriorSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -43,7 +42,7 @@ pub enum Command {
     /// Disparity of a rectified pair (left is the reference), for any pair of filters.
     Match(MatchArgs),
     /// A rig's captures to a multispectral light field: a reflectance cube per view.
-    Reconstruct(ReconstructArgs),
+    Reconstruct(Box<ReconstructArgs>),
     /// Score a reconstruction against the simulator's truth (the paper's Table 1).
     Eval(EvalArgs),
 }
@@ -109,30 +108,30 @@ pub struct MatchArgs {
     #[arg(long, value_enum, default_value_t = ChannelChoice::Luminance)]
     pub channel: ChannelChoice,
     /// Skip cross-based cost aggregation (only the accurate chain uses it).
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub no_aggregation: bool,
     /// Skip semi-global matching.
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub no_sgm: bool,
     /// SGM path directions.
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(4..=8))]
+    #[arg(long, help_heading = "Ablation", default_value_t = 4, value_parser = clap::value_parser!(u8).range(4..=8))]
     pub sgm_paths: u8,
-    #[arg(long, value_enum, default_value_t = LeftRightChoice::Fill)]
+    #[arg(long, help_heading = "Ablation", value_enum, default_value_t = LeftRightChoice::Fill)]
     pub left_right: LeftRightChoice,
     /// Skip parabolic subpixel refinement.
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub no_subpixel: bool,
     /// Skip the 5×5 median filter.
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub no_median: bool,
     /// Skip the bilateral filter.
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub no_bilateral: bool,
     /// Winner-take-all on the raw cost: every refinement stage off.
-    #[arg(long)]
+    #[arg(long, help_heading = "Ablation")]
     pub raw: bool,
     /// Start from MC-CNN's published KITTI 2015 values instead of anaglyph's tuned chain.
-    #[arg(long, conflicts_with = "raw")]
+    #[arg(long, help_heading = "Ablation", conflicts_with = "raw")]
     pub published: bool,
     /// Write per-stage timings and settings as JSON here.
     #[arg(long)]
@@ -628,85 +627,22 @@ pub struct ReconstructArgs {
     /// with exposure metadata when there is no white board.
     #[arg(long)]
     pub illuminant: Option<String>,
-    #[arg(long, value_enum, default_value_t = RegistrationChoice::MultiBaseline)]
-    pub registration: RegistrationChoice,
-    /// What multi-baseline registration compares the views by.
-    #[arg(long, value_enum, default_value_t = MatchingImageChoice::CommonSignals)]
-    pub matching_image: MatchingImageChoice,
-    /// Matching cost (multi-baseline registration needs mccnn).
-    #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
-    pub method: MatchMethod,
-    /// Network weights (safetensors from `anaglyph train`); default: the built-in fast model.
-    #[arg(long)]
-    pub model: Option<PathBuf>,
     /// Disparities searched per column step: [0, N), or `auto` to choose N from a coarse
     /// registration of the captures (recorded in the manifest).
     #[arg(long, default_value = "auto", value_parser = parse_search_range)]
     pub max_disp: SearchRangeArg,
+    /// The stages and tuning: `default` (every stage, the measured defaults), `fast`
+    /// (a lighter scene prior: about 15 % quicker), `paper` (the paper's pipeline: Eq. 6
+    /// on bilinearly warped measurements, no prior, no refinement). Tuning options
+    /// override it.
+    #[arg(long, value_enum, default_value_t = PresetChoice::Default)]
+    pub preset: PresetChoice,
     /// Reflectance of the white board.
-    #[arg(long, default_value_t = 0.95)]
+    #[arg(long, default_value_t = DEFAULT_WHITE_REFLECTANCE)]
     pub white_reflectance: f64,
     /// Capture values at or above this fraction of full scale are saturated (masked).
-    #[arg(long, default_value_t = 0.999)]
+    #[arg(long, default_value_t = DEFAULT_SATURATION_LEVEL)]
     pub saturation: f32,
-    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
-    pub solver: SolverArg,
-    /// Leave each view's cube as demultiplexed (the paper) instead of refining it with a
-    /// guided filter whose guide is the view's own capture.
-    #[arg(long)]
-    pub no_refine: bool,
-    /// Window half-width of the guided refinement, pixels.
-    #[arg(long, default_value_t = GuidedRefinement::default().radius as u64,
-          value_parser = clap::value_parser!(u64).range(1..=64))]
-    pub refine_radius: u64,
-    /// Ridge weight ε of the guided refinement (squared reflectance): larger smooths more.
-    #[arg(long, default_value_t = GuidedRefinement::default().epsilon, value_parser = parse_positive)]
-    pub refine_epsilon: f64,
-    /// Confidence of the guided refinement: pixels weigh 1/(1+(ρ/σ)²), ρ their residual
-    /// ‖P − Cŝ‖ and σ this multiple of the view's median residual; 0: equal weights.
-    #[arg(long, default_value_t = GuidedRefinement::default().confidence_scale.unwrap_or(0.0),
-          value_parser = parse_non_negative)]
-    pub refine_confidence: f64,
-    /// Leave the pixels some cameras do not see to Eq. 6's smoothness alone instead of
-    /// estimating them from the spectra of the pixels every camera sees. Also switches off
-    /// the inconsistent-pixels stage (--scene-prior-inconsistency), whose pixels the prior
-    /// estimates.
-    #[arg(long)]
-    pub no_scene_prior: bool,
-    /// Scene prior: multiplies the measurement noise it assumes (learned from the
-    /// residuals); larger leans more on the scene's mean spectrum.
-    #[arg(long, default_value_t = ScenePriorSettings::default().noise_scale,
-          value_parser = parse_positive)]
-    pub scene_prior_noise: f64,
-    /// Scene prior: clusters of the complete pixels' spectra per k-means run (the prior is
-    /// a mixture of Gaussians over 2 runs); 1 gives one Gaussian, the scene's mean and
-    /// covariance.
-    #[arg(long, default_value_t = ScenePriorSettings::default().clusters as u32,
-          value_parser = clap::value_parser!(u32).range(1..=1024))]
-    pub scene_prior_clusters: u32,
-    /// Scene prior: rounds that add the materials the complete pixels lack, learned from
-    /// the pixels at least half the camera channels measure; 0 keeps the complete pixels'
-    /// mixture alone.
-    #[arg(long, default_value_t = ScenePriorSettings::default().propagation_rounds as u32,
-          value_parser = clap::value_parser!(u32).range(0..=8))]
-    pub scene_prior_rounds: u32,
-    /// Scene prior: pixels whose residual exceeds K times the median of the completely
-    /// measured pixels' keep only their own camera's measurements, and the prior estimates
-    /// them from those (a wrong match gathers other surfaces' light); 0 keeps every
-    /// measurement.
-    #[arg(long, value_name = "K", default_value_t = INCONSISTENCY_FACTOR,
-          value_parser = parse_non_negative)]
-    pub scene_prior_inconsistency: f64,
-    /// Admit the warped measurements a camera's own disparity map disputes but the view's
-    /// depth order allows (on repetitive surfaces the views' maps pick different periods),
-    /// and keep them where a pixel's residual with them stays within T times its residual
-    /// without them; 0: the cameras' maps decide visibility alone.
-    #[arg(long, value_name = "T", default_value_t = DISPUTED_TOLERANCE,
-          value_parser = parse_disputed_tolerance)]
-    pub disputed_tolerance: f64,
-    /// How the warp reads each camera at the fractional positions the disparities give.
-    #[arg(long, value_enum, default_value_t = WarpKernelChoice::Lanczos3)]
-    pub warp_kernel: WarpKernelChoice,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
     #[arg(long, value_parser = parse_probes)]
     pub probe: Option<Probes>,
@@ -715,8 +651,89 @@ pub struct ReconstructArgs {
     pub truth: Option<PathBuf>,
     /// Use this simulator output's true disparities instead of registration (the
     /// registration ceiling).
-    #[arg(long, conflicts_with = "registration")]
+    #[arg(long)]
     pub true_disparity: Option<PathBuf>,
+    #[command(flatten)]
+    pub registration: RegistrationArgs,
+    #[command(flatten)]
+    pub tuning: TuningArgs,
+}
+
+/// How `reconstruct` registers the array.
+#[derive(Debug, clap::Args)]
+#[command(next_help_heading = "Registration")]
+pub struct RegistrationArgs {
+    #[arg(long, value_enum, default_value_t = RegistrationChoice::MultiBaseline,
+          conflicts_with = "true_disparity")]
+    pub registration: RegistrationChoice,
+    /// Matching cost (multi-baseline registration needs mccnn).
+    #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
+    pub method: MatchMethod,
+    /// Network weights (safetensors from `anaglyph train`); default: the built-in fast model.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+/// The tuning knobs of `reconstruct`, each overriding the preset's value (shown as
+/// "default" for the default preset).
+#[derive(Debug, clap::Args)]
+#[command(next_help_heading = "Tuning (each overrides --preset)")]
+pub struct TuningArgs {
+    /// What multi-baseline registration compares the views by [default: common-signals].
+    #[arg(long, value_enum)]
+    pub matching_image: Option<MatchingImageChoice>,
+    /// How the warp reads each camera at fractional positions [default: lanczos3].
+    #[arg(long, value_enum)]
+    pub warp_kernel: Option<WarpKernelChoice>,
+    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
+    pub solver: SolverArg,
+    /// Admit the warped measurements a camera's own map disputes but the view's depth
+    /// order allows, and keep them where a pixel's residual with them stays within T times
+    /// its residual without them; 0: the cameras' maps decide visibility alone [default: 2].
+    #[arg(long, value_name = "T", value_parser = parse_disputed_tolerance)]
+    pub disputed_tolerance: Option<f64>,
+    /// Pixels whose residual exceeds K times the median of the completely measured
+    /// pixels' keep only their own camera's measurements, for the scene prior to estimate;
+    /// 0: keep every measurement [default: 4].
+    #[arg(long, value_name = "K", value_parser = parse_non_negative)]
+    pub scene_prior_inconsistency: Option<f64>,
+    /// Leave the pixels some cameras do not see to Eq. 6's smoothness alone (also switches
+    /// off --scene-prior-inconsistency, whose pixels the prior estimates).
+    #[arg(long)]
+    pub no_scene_prior: bool,
+    /// Scene prior: multiplies the measurement noise it assumes; larger leans more on the
+    /// scene's mean spectrum [default: 0.5].
+    #[arg(long, value_parser = parse_positive)]
+    pub scene_prior_noise: Option<f64>,
+    /// Scene prior: clusters per k-means run (the prior is a mixture of Gaussians over 2
+    /// runs); 1: one Gaussian [default: 32].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub scene_prior_clusters: Option<u32>,
+    /// Scene prior: rounds that add the materials the complete pixels lack [default: 2].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub scene_prior_rounds: Option<u32>,
+    /// Leave each view's cube as demultiplexed instead of refining it with a guided
+    /// filter whose guide is the view's own capture.
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Window half-width of the guided refinement, pixels [default: 4].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub refine_radius: Option<u64>,
+    /// Ridge weight ε of the guided refinement (squared reflectance) [default: 1e-4].
+    #[arg(long, value_parser = parse_positive)]
+    pub refine_epsilon: Option<f64>,
+    /// Pixels weigh 1/(1+(ρ/σ)²) in the refinement, ρ their residual and σ this multiple
+    /// of the view's median residual; 0: equal weights [default: 1.5].
+    #[arg(long, value_parser = parse_non_negative)]
+    pub refine_confidence: Option<f64>,
+}
+
+/// `reconstruct --preset`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PresetChoice {
+    Default,
+    Fast,
+    Paper,
 }
 
 #[derive(Debug, clap::Args)]

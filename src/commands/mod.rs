@@ -27,7 +27,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::run(args),
         Command::Train(args) => train::run(args),
         Command::Match(args) => match_pair::run(args),
-        Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Reconstruct(args) => reconstruct::run(*args),
         Command::Eval(args) => eval::run(args),
     }
 }

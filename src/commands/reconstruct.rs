@@ -5,18 +5,19 @@
 use super::format_seconds;
 use super::match_pair::{load_network, matching_cost};
 use crate::cli::{
-    MatchingImageChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg, ViewList,
-    WarpKernelChoice,
+    MatchingImageChoice, PresetChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg,
+    TuningArgs, ViewList, WarpKernelChoice,
 };
-use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
-    reconstruct, write_light_field, ArrayCaptures, OutputOptions, PipelineSettings, Stage,
+    reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
+    Preset, Stage,
 };
 use anaglyph_core::refine::GuidedRefinement;
-use anaglyph_core::register::{MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel};
+use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::{resolve_curve, Rig};
 use anaglyph_core::solve::{ScenePriorSettings, SolveSettings};
+use anaglyph_core::stereo::MatchingCost;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::Path;
@@ -61,88 +62,22 @@ fn stage_bar() -> ProgressBar {
 
 pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    if !(args.white_reflectance > 0.0 && args.white_reflectance <= 1.0) {
-        anyhow::bail!(
-            "--white-reflectance {} (expected in (0, 1])",
-            args.white_reflectance
-        );
-    }
-    if !(args.saturation > 0.0 && args.saturation <= 1.0) {
-        anyhow::bail!("--saturation {} (expected in (0, 1])", args.saturation);
-    }
-    let mut rig = Rig::load(&args.rig)?;
-    if let Some(reference) = &args.illuminant {
-        let light = resolve_curve(reference, Path::new("."))
-            .with_context(|| format!("--illuminant {reference}"))?;
-        for cam in &rig.cameras {
-            let (lo, hi) = cam.sensor.domain();
-            light.check_covers(lo, hi)?;
-        }
-        rig.illuminant = Some(light);
-    }
+    let network = load_network(args.registration.method, args.registration.model.as_deref())?;
+    let cost = matching_cost(args.registration.method, network.as_ref())?;
+    let mut settings = pipeline_settings(&args, cost);
+    settings.validate()?;
+    let rig = load_rig(&args)?;
     let captures = ArrayCaptures::load(
         &rig,
         args.captures.as_deref(),
         args.white.as_deref(),
         args.calibration.as_deref(),
     )?;
-    let (w, h) = (captures.width, captures.height);
-    let given = args
-        .true_disparity
-        .as_deref()
-        .map(|dir| true_disparities(dir, &rig, w, h))
-        .transpose()?;
-    let network = load_network(args.method, args.model.as_deref())?;
-    let cost = matching_cost(args.method, network.as_ref())?;
-    let mode = match args.registration {
-        RegistrationChoice::MultiBaseline => RegistrationMode::MultiBaseline,
-        RegistrationChoice::Pairwise => RegistrationMode::Pairwise,
-    };
-    let settings = PipelineSettings {
-        registration: RegistrationSettings {
-            mode,
-            cost,
-            max_disp: match args.max_disp {
-                SearchRangeArg::Fixed(n) => n,
-                SearchRangeArg::Auto => 64, // replaced by the estimate
-            },
-        },
-        white_reflectance: args.white_reflectance,
-        saturation_level: args.saturation,
-        demux: DemuxOptions {
-            solver: args.solver.into(),
-            ..DemuxOptions::default()
-        },
-        views: match &args.views {
-            ViewList::All => None,
-            ViewList::Some(list) => Some(list.clone()),
-        },
-        automatic_search_range: args.max_disp == SearchRangeArg::Auto && given.is_none(),
-        given_disparities: given,
-        matching_image: match args.matching_image {
-            MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
-            MatchingImageChoice::Luminance => MatchingImage::Luminance,
-        },
-        solve: SolveSettings {
-            disputed_tolerance: (args.disputed_tolerance > 0.0).then_some(args.disputed_tolerance),
-            inconsistency_factor: (!args.no_scene_prior && args.scene_prior_inconsistency > 0.0)
-                .then_some(args.scene_prior_inconsistency),
-            scene_prior: (!args.no_scene_prior).then_some(ScenePriorSettings {
-                noise_scale: args.scene_prior_noise,
-                clusters: args.scene_prior_clusters as usize,
-                propagation_rounds: args.scene_prior_rounds as usize,
-            }),
-            refinement: (!args.no_refine).then_some(GuidedRefinement {
-                radius: args.refine_radius as usize,
-                epsilon: args.refine_epsilon,
-                confidence_scale: (args.refine_confidence > 0.0).then_some(args.refine_confidence),
-            }),
-        },
-        warp_kernel: match args.warp_kernel {
-            WarpKernelChoice::Lanczos3 => WarpKernel::Lanczos3,
-            WarpKernelChoice::Bilinear => WarpKernel::Bilinear,
-        },
-    };
+    if let Some(dir) = &args.true_disparity {
+        let maps = true_disparities(dir, &rig, captures.width, captures.height)?;
+        settings.given_disparities = Some(maps);
+        settings.automatic_search_range = false;
+    }
     let loading = started.elapsed().as_secs_f64();
     let bar = stage_bar();
     let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
@@ -155,17 +90,151 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         bar.set_position(done as u64);
     })?;
     bar.finish_and_clear();
-    let parameters = serde_json::json!({
+    let options = OutputOptions {
+        probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
+        truth: args.truth.clone(),
+        parameters: manifest_parameters(&args, &rig, &settings),
+        loading_seconds: loading,
+    };
+    let files = write_light_field(&args.out, &rig, &field, &options)?;
+    print_summary(&field);
+    println!(
+        "wrote {} files under {} in {}",
+        files.len(),
+        args.out.display(),
+        format_seconds(started.elapsed().as_secs_f64())
+    );
+    Ok(())
+}
+
+/// The rig, with `--illuminant` folded in.
+fn load_rig(args: &ReconstructArgs) -> anyhow::Result<Rig> {
+    let mut rig = Rig::load(&args.rig)?;
+    if let Some(reference) = &args.illuminant {
+        let light = resolve_curve(reference, Path::new("."))
+            .with_context(|| format!("--illuminant {reference}"))?;
+        for cam in &rig.cameras {
+            let (lo, hi) = cam.sensor.domain();
+            light.check_covers(lo, hi)?;
+        }
+        rig.illuminant = Some(light);
+    }
+    Ok(rig)
+}
+
+/// The preset's settings with every option the user gave applied over them.
+fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> PipelineSettings<'a> {
+    let preset = match args.preset {
+        PresetChoice::Default => Preset::Default,
+        PresetChoice::Fast => Preset::Fast,
+        PresetChoice::Paper => Preset::Paper,
+    };
+    let tuning = &args.tuning;
+    let mut settings = PipelineSettings::with_preset(cost, preset);
+    settings.registration.mode = match args.registration.registration {
+        RegistrationChoice::MultiBaseline => RegistrationMode::MultiBaseline,
+        RegistrationChoice::Pairwise => RegistrationMode::Pairwise,
+    };
+    if let SearchRangeArg::Fixed(n) = args.max_disp {
+        settings.registration.max_disp = n;
+        settings.automatic_search_range = false;
+    }
+    settings.white_reflectance = args.white_reflectance;
+    settings.saturation_level = args.saturation;
+    settings.demux.solver = tuning.solver.into();
+    settings.views = match &args.views {
+        ViewList::All => None,
+        ViewList::Some(list) => Some(list.clone()),
+    };
+    if let Some(choice) = tuning.matching_image {
+        settings.matching_image = match choice {
+            MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
+            MatchingImageChoice::Luminance => MatchingImage::Luminance,
+        };
+    }
+    if let Some(choice) = tuning.warp_kernel {
+        settings.warp_kernel = match choice {
+            WarpKernelChoice::Lanczos3 => WarpKernel::Lanczos3,
+            WarpKernelChoice::Bilinear => WarpKernel::Bilinear,
+        };
+    }
+    settings.solve = solve_settings(tuning, settings.solve);
+    settings
+}
+
+/// The preset's solve with the tuning options applied: a stage's option switches it on,
+/// `--no-…` off, 0 off where documented.
+fn solve_settings(tuning: &TuningArgs, preset: SolveSettings) -> SolveSettings {
+    let mut solve = preset;
+    if let Some(t) = tuning.disputed_tolerance {
+        solve.disputed_tolerance = (t > 0.0).then_some(t);
+    }
+    let prior_asked = tuning.scene_prior_noise.is_some()
+        || tuning.scene_prior_clusters.is_some()
+        || tuning.scene_prior_rounds.is_some();
+    if prior_asked && solve.scene_prior.is_none() {
+        solve.scene_prior = Some(ScenePriorSettings::default());
+    }
+    if let Some(prior) = &mut solve.scene_prior {
+        prior.noise_scale = tuning.scene_prior_noise.unwrap_or(prior.noise_scale);
+        prior.clusters = tuning
+            .scene_prior_clusters
+            .map_or(prior.clusters, |c| c as usize);
+        prior.propagation_rounds = tuning
+            .scene_prior_rounds
+            .map_or(prior.propagation_rounds, |r| r as usize);
+    }
+    if let Some(k) = tuning.scene_prior_inconsistency {
+        solve.inconsistency_factor = (k > 0.0).then_some(k);
+    }
+    if tuning.no_scene_prior {
+        solve.scene_prior = None;
+        solve.inconsistency_factor = None;
+    }
+    let refine_asked = tuning.refine_radius.is_some()
+        || tuning.refine_epsilon.is_some()
+        || tuning.refine_confidence.is_some();
+    if refine_asked && solve.refinement.is_none() {
+        solve.refinement = Some(GuidedRefinement::default());
+    }
+    if let Some(refinement) = &mut solve.refinement {
+        refinement.radius = tuning
+            .refine_radius
+            .map_or(refinement.radius, |r| r as usize);
+        refinement.epsilon = tuning.refine_epsilon.unwrap_or(refinement.epsilon);
+        if let Some(scale) = tuning.refine_confidence {
+            refinement.confidence_scale = (scale > 0.0).then_some(scale);
+        }
+    }
+    if tuning.no_refine {
+        solve.refinement = None;
+    }
+    solve
+}
+
+/// Inputs and settings as the manifest records them.
+fn manifest_parameters(
+    args: &ReconstructArgs,
+    rig: &Rig,
+    settings: &PipelineSettings<'_>,
+) -> serde_json::Value {
+    let path = |p: &Option<std::path::PathBuf>| p.as_ref().map(|p| p.display().to_string());
+    serde_json::json!({
         "rig": args.rig.display().to_string(),
-        "captures": args.captures.as_ref().map(|p| p.display().to_string()),
-        "white": args.white.as_ref().map(|p| p.display().to_string()),
-        "calibration": args.calibration.as_ref().map(|p| p.display().to_string()),
+        "captures": path(&args.captures),
+        "white": path(&args.white),
+        "calibration": path(&args.calibration),
         "illuminant": args.illuminant,
-        "registration": if settings.given_disparities.is_some() { "true disparities".to_string() } else { format!("{mode:?}") },
+        "preset": format!("{:?}", args.preset).to_lowercase(),
+        "registration": if settings.given_disparities.is_some() {
+            "true disparities".to_string()
+        } else {
+            format!("{:?}", settings.registration.mode)
+        },
         "matching_image": settings.matching_image,
-        "true_disparity": args.true_disparity.as_ref().map(|p| p.display().to_string()),
-        "method": format!("{:?}", args.method),
-        "model": args.model.as_ref().map(|p| p.display().to_string()),
+        "true_disparity": path(&args.true_disparity),
+        "method": format!("{:?}", args.registration.method),
+        "model": path(&args.registration.model),
         "max_disp": match args.max_disp {
             SearchRangeArg::Fixed(n) => serde_json::json!(n),
             SearchRangeArg::Auto => serde_json::json!("auto"),
@@ -181,22 +250,20 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         "warp_kernel": settings.warp_kernel,
         "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
-    });
-    let options = OutputOptions {
-        probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
-        truth: args.truth.clone(),
-        parameters,
-        loading_seconds: loading,
-    };
-    let files = write_light_field(&args.out, &rig, &field, &options)?;
+    })
+}
+
+/// Warnings on standard error; what was reconstructed, per view and per stage, on
+/// standard output.
+fn print_summary(field: &LightField) {
     for warning in &field.warnings {
         eprintln!("warning: {warning}");
     }
     println!(
         "reconstructed {} view(s) of {}x{} px, {} bands ({}–{} nm); cond(C) = {:.3e}",
         field.views.len(),
-        w,
-        h,
+        field.width,
+        field.height,
         field.bands.len(),
         field.bands.first().copied().unwrap_or(0.0),
         field.bands.last().copied().unwrap_or(0.0),
@@ -220,11 +287,53 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     for (stage, seconds) in &field.timings {
         println!("  {stage:<40} {}", format_seconds(*seconds));
     }
-    println!(
-        "wrote {} files under {} in {}",
-        files.len(),
-        args.out.display(),
-        format_seconds(started.elapsed().as_secs_f64())
-    );
-    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cli::{Args, Command};
+    use clap::Parser;
+
+    fn settings_of(extra: &[&str]) -> PipelineSettings<'static> {
+        let mut argv = vec!["anaglyph", "reconstruct", "--rig", "r.toml", "--out", "o"];
+        argv.extend_from_slice(extra);
+        let Command::Reconstruct(args) = Args::try_parse_from(argv).unwrap().command else {
+            panic!("not reconstruct");
+        };
+        pipeline_settings(&args, MatchingCost::Census)
+    }
+
+    #[test]
+    fn presets_choose_the_stages_and_options_override_them() {
+        let default = settings_of(&[]);
+        assert_eq!(default.solve, SolveSettings::default());
+        assert_eq!(default.warp_kernel, WarpKernel::Lanczos3);
+        assert!(default.automatic_search_range);
+
+        let paper = settings_of(&["--preset", "paper"]);
+        assert_eq!(paper.solve, SolveSettings::paper());
+        assert_eq!(paper.warp_kernel, WarpKernel::Bilinear);
+
+        let fast = settings_of(&["--preset", "fast"]);
+        let prior = fast.solve.scene_prior.unwrap();
+        assert_eq!((prior.clusters, prior.propagation_rounds), (8, 0));
+
+        // A stage's option switches it on over a preset without it.
+        let refined = settings_of(&["--preset", "paper", "--refine-radius", "3"]);
+        assert_eq!(refined.solve.refinement.unwrap().radius, 3);
+        assert!(refined.solve.scene_prior.is_none());
+
+        // --no-scene-prior also switches off the stage that hands its pixels to the prior.
+        let no_prior = settings_of(&["--no-scene-prior", "--max-disp", "40"]);
+        assert!(no_prior.solve.scene_prior.is_none());
+        assert!(no_prior.solve.inconsistency_factor.is_none());
+        no_prior.validate().unwrap();
+        assert_eq!(no_prior.registration.max_disp, 40);
+        assert!(!no_prior.automatic_search_range);
+
+        let off = settings_of(&["--disputed-tolerance", "0", "--refine-confidence", "0"]);
+        assert!(off.solve.disputed_tolerance.is_none());
+        assert!(off.solve.refinement.unwrap().confidence_scale.is_none());
+    }
 }

@@ -6,7 +6,7 @@ use crate::cli::SelectFiltersArgs;
 use crate::progress::spinner;
 use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::filters::{
-    select_filters, SelectionCriterion, SelectionOptions, SelectionReport,
+    select_filters, SelectionCamera, SelectionCriterion, SelectionOptions, SelectionReport,
 };
 use anaglyph_core::rig::{resolve_curve, OutOfBand};
 use anaglyph_core::spectrum::{Interpolation, ResponseCurve, SpectralShape};
@@ -61,11 +61,13 @@ pub fn run_selection(
     let start = Instant::now();
     let report = select_filters(
         &inputs.candidates,
-        &inputs.sensor,
-        inputs.illuminant.as_ref(),
-        Interpolation::CubicSpline,
-        SpectralShape::PAPER_BANDS,
-        out_of_band,
+        &SelectionCamera {
+            sensor: &inputs.sensor,
+            illuminant: inputs.illuminant.as_ref(),
+            sensor_interpolation: Interpolation::CubicSpline,
+            reported: SpectralShape::PAPER_BANDS,
+            out_of_band: out_of_band,
+        },
         &prior,
         options,
     )?;

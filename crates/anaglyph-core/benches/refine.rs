@@ -5,6 +5,7 @@
 //! included: `solve::fill_view`) at the paper rig's
 //! shape: 24 measurement rows, 52 knots, a quarter of the pixels missing 3 to 18 rows.
 
+use anaglyph_core::image::Image;
 use anaglyph_core::refine::{guided_filter, GuidedFilter, GuidedRefinement};
 use anaglyph_core::rig::SensingMatrix;
 use anaglyph_core::solve::{fill_view, ScenePriorSettings};
@@ -33,16 +34,14 @@ fn bench_refine(criterion: &mut Criterion) {
     };
     let bands = 24;
     for (w, h) in [(640usize, 480usize), (1920, 1080)] {
-        let guide = texture(w * h * 3, 1);
-        let cube = texture(w * h * bands, 2);
+        let guide = Image::new(w, h, 3, texture(w * h * 3, 1)).expect("guide");
+        let cube = Image::new(w, h, bands, texture(w * h * bands, 2)).expect("cube");
         group.throughput(Throughput::Elements((w * h) as u64));
         group.bench_with_input(
             BenchmarkId::from_parameter(format!("{w}x{h}")),
             &(guide, cube),
             |b, (guide, cube)| {
-                b.iter(|| {
-                    guided_filter(guide, 3, None, cube, bands, w, h, filter).expect("filter")
-                });
+                b.iter(|| guided_filter(guide, cube, None, filter).expect("filter"));
             },
         );
     }

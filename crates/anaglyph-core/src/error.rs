@@ -24,6 +24,35 @@ pub enum Error {
     #[error("{context}: {message}")]
     Invalid { context: String, message: String },
 
+    #[error("{}: {field} is {found} (expected {expected})", file.display())]
+    BadField {
+        file: PathBuf,
+        field: String,
+        found: String,
+        expected: String,
+    },
+
+    #[error("{}: unsupported {what} {found} (supported: {supported})", file.display())]
+    UnsupportedFormat {
+        file: PathBuf,
+        what: String,
+        found: String,
+        supported: String,
+    },
+
+    #[error("{}: {found} bytes (expected {expected}; a partial or stale file?)", path.display())]
+    FileSize {
+        path: PathBuf,
+        found: u64,
+        expected: u64,
+    },
+
+    #[error("{}: missing ({what})", path.display())]
+    MissingFile { path: PathBuf, what: String },
+
+    #[error("{what} is {value} (expected a finite number)")]
+    NonFinite { what: String, value: f64 },
+
     #[error(
         "curve '{name}' covers {have_start} to {have_end} nm but {need_start} to {need_end} nm is needed"
     )]
@@ -62,7 +91,7 @@ pub enum Error {
 
     #[error("{setting} is {value} (expected {expected})")]
     OutOfRange {
-        setting: &'static str,
+        setting: String,
         value: f64,
         expected: String,
     },
@@ -89,6 +118,32 @@ impl Error {
         Error::Invalid {
             context: context.into(),
             message: message.into(),
+        }
+    }
+
+    pub(crate) fn out_of_range(
+        setting: impl Into<String>,
+        value: f64,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::OutOfRange {
+            setting: setting.into(),
+            value,
+            expected: expected.into(),
+        }
+    }
+
+    pub(crate) fn bad_field(
+        file: impl Into<PathBuf>,
+        field: impl Into<String>,
+        found: impl ToString,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::BadField {
+            file: file.into(),
+            field: field.into(),
+            found: found.to_string(),
+            expected: expected.into(),
         }
     }
 

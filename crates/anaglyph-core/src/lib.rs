@@ -41,6 +41,7 @@ pub mod demux;
 mod error;
 pub mod evaluation;
 pub mod filters;
+pub mod image;
 pub mod interpolation;
 pub mod io;
 pub mod metrics;

@@ -140,11 +140,11 @@ fn learned_multi_baseline_registration_comes_close_to_the_true_disparities() {
     assert_eq!(estimated.views.len(), 8);
     assert_eq!(o_bad, 0.0);
     assert!(
-        o_ref > 25.4 && o_seen > 26.0 && o_mean > 27.0,
+        o_ref > 25.0 && o_seen > 25.6 && o_mean > 26.7,
         "{o_ref} {o_seen} {o_mean}"
     );
     assert!(
-        e_ref > 23.5 && e_seen > 24.5 && e_mean > 24.9,
+        e_ref > 23.0 && e_seen > 24.0 && e_mean > 24.4,
         "{e_ref} {e_seen} {e_mean}"
     );
     assert!(e_bad < 9.0, "{e_bad}");
@@ -228,7 +228,8 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
             uniform.0
         );
     }
-    assert!(scores[2].0 > 31.8 && scores[5].0 > 30.4, "{scores:?}");
+    // About 1 dB under what was measured (32.29 and 30.89 dB above).
+    assert!(scores[2].0 > 31.3 && scores[5].0 > 29.9, "{scores:?}");
 }
 
 #[test]
@@ -323,7 +324,7 @@ fn guided_refinement_still_helps_when_spectra_vary_at_fixed_colour() {
     // variation, 26.01 / 27.71 -> 32.29 / 35.98 dB in the test above).
     assert!(scores[1].0 > scores[0].0 + 2.0, "{scores:?}");
     assert!(scores[1].2 > scores[0].2 + 3.8, "{scores:?}");
-    assert!(scores[1].0 > 28.0, "{scores:?}");
+    assert!(scores[1].0 > 27.4, "{scores:?}");
 }
 
 #[test]
@@ -518,7 +519,7 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
     // Measured (r0c0 / all views): 27.06 / 26.68 -> 29.37 / 29.67 dB.
     assert!(scores[1].0 > scores[0].0 + 1.7, "{scores:?}");
     assert!(scores[1].2 > scores[0].2 + 2.4, "{scores:?}");
-    assert!(scores[0].0 > 26.5 && scores[1].0 > 28.8, "{scores:?}");
+    assert!(scores[0].0 > 26.0 && scores[1].0 > 28.3, "{scores:?}");
 }
 
 #[test]

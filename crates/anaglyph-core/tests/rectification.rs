@@ -278,7 +278,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
     eprintln!("r0c0 bad-2: ideal array {ideal:.1} %, rectified {rectified:.1} %");
     // Measured: ideal 7.0 %, rectified 11.0 % (14.2 % over all pixels without giving
     // unmeasured pixels empty features). The rest is the frame border that other rotated
-    // cameras do not cover; away from the borders the two agree (README, Rectification).
+    // cameras do not cover; away from the borders the two agree (docs/reconstruction.md, "Rectification").
     assert!(
         rectified < ideal + 5.5 && rectified < 13.0,
         "ideal {ideal:.1} %, rectified {rectified:.1} %"

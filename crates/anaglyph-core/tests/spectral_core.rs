@@ -6,7 +6,9 @@ use anaglyph_core::builtin;
 use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::demux::DemuxOptions;
 use anaglyph_core::evaluation::{recover_reflectances, TrialSettings};
-use anaglyph_core::filters::{select_filters, SelectionCriterion, SelectionOptions};
+use anaglyph_core::filters::{
+    select_filters, SelectionCamera, SelectionCriterion, SelectionOptions,
+};
 use anaglyph_core::rig::{
     EffectiveResponses, OutOfBand, Rig, RigFile, SensingMatrix, PAPER_RIG_FILTERS,
 };
@@ -154,11 +156,13 @@ fn exhaustive_selection_finds_the_independently_computed_optimum() {
     let prior = builtin::reflectances("colorchecker_n_ohta").unwrap();
     let report = select_filters(
         &candidates,
-        &sensor,
-        Some(&light),
-        Interpolation::CubicSpline,
-        shape,
-        OutOfBand::Extend,
+        &SelectionCamera {
+            sensor: &sensor,
+            illuminant: Some(&light),
+            sensor_interpolation: Interpolation::CubicSpline,
+            reported: shape,
+            out_of_band: OutOfBand::Extend,
+        },
         &prior,
         &options,
     )
@@ -179,11 +183,13 @@ fn exhaustive_selection_finds_the_independently_computed_optimum() {
     };
     let greedy = select_filters(
         &candidates,
-        &sensor,
-        Some(&light),
-        Interpolation::CubicSpline,
-        shape,
-        OutOfBand::Extend,
+        &SelectionCamera {
+            sensor: &sensor,
+            illuminant: Some(&light),
+            sensor_interpolation: Interpolation::CubicSpline,
+            reported: shape,
+            out_of_band: OutOfBand::Extend,
+        },
         &prior,
         &greedy_options,
     )
@@ -219,11 +225,13 @@ fn noise_criterion_predicts_the_measured_error() {
     };
     let report = select_filters(
         &candidates,
-        &sensor,
-        Some(&light),
-        Interpolation::CubicSpline,
-        SpectralShape::PAPER_BANDS,
-        OutOfBand::Extend,
+        &SelectionCamera {
+            sensor: &sensor,
+            illuminant: Some(&light),
+            sensor_interpolation: Interpolation::CubicSpline,
+            reported: SpectralShape::PAPER_BANDS,
+            out_of_band: OutOfBand::Extend,
+        },
         &prior,
         &options,
     )

@@ -10,6 +10,6 @@ mod selection;
 pub use calibration::{calibrate_filter, FilterCalibration};
 pub use gel_model::{gel_library, GelFilter, GelShape, GEL_LIBRARY_SHAPE};
 pub use selection::{
-    select_filters, NoiseModel, SelectionCriterion, SelectionOptions, SelectionReport, SubsetScore,
-    EXHAUSTIVE_LIMIT,
+    select_filters, NoiseModel, SelectionCamera, SelectionCriterion, SelectionOptions,
+    SelectionReport, SubsetScore, EXHAUSTIVE_LIMIT,
 };

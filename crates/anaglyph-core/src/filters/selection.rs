@@ -177,19 +177,33 @@ impl Problem {
     }
 }
 
-/// Chooses `options.count` of `candidates` for cameras with `sensor` under `illuminant`.
-/// `prior` is a set of reflectances (one column each) for the noise criterion.
-#[allow(clippy::too_many_arguments)]
+/// The camera every candidate filter would sit in front of, and the reconstruction it
+/// serves.
+#[derive(Debug, Clone, Copy)]
+pub struct SelectionCamera<'a> {
+    pub sensor: &'a ResponseCurve,
+    pub illuminant: Option<&'a ResponseCurve>,
+    pub sensor_interpolation: Interpolation,
+    /// The reconstruction bands.
+    pub reported: SpectralShape,
+    pub out_of_band: OutOfBand,
+}
+
+/// Chooses `options.count` of `candidates` for `camera`. `prior` is a set of reflectances
+/// (one column each) for the noise criterion.
 pub fn select_filters(
     candidates: &[ResponseCurve],
-    sensor: &ResponseCurve,
-    illuminant: Option<&ResponseCurve>,
-    sensor_interpolation: Interpolation,
-    reported: SpectralShape,
-    out_of_band: OutOfBand,
+    camera: &SelectionCamera<'_>,
     prior: &ResponseCurve,
     options: &SelectionOptions,
 ) -> Result<SelectionReport> {
+    let SelectionCamera {
+        sensor,
+        illuminant,
+        sensor_interpolation,
+        reported,
+        out_of_band,
+    } = *camera;
     let k = options.count;
     if k == 0 || k > candidates.len() {
         return Err(Error::invalid(

@@ -131,157 +131,278 @@ fn parse_header(text: &str) -> std::result::Result<HashMap<String, String>, Stri
     Ok(fields)
 }
 
-/// Reads an ENVI cube given its header path; the data file is `.img`, `.dat`, `.raw`
-/// or the header path without extension.
-pub fn read_envi(path: &Path) -> Result<EnviCube> {
-    let bad = |message: String| Error::Parse {
-        context: path.display().to_string(),
-        line: 0,
-        message,
-    };
-    let size = std::fs::metadata(path)
-        .map_err(|e| Error::io(path, e))?
-        .len();
-    if size > MAX_ENVI_HEADER_BYTES {
-        return Err(Error::TooLarge {
-            op: format!("reading {}", path.display()),
-            what: "header size".into(),
-            size,
-            limit: MAX_ENVI_HEADER_BYTES,
-        });
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let fields = parse_header(&text).map_err(bad)?;
-    let int = |key: &str| -> Result<usize> {
-        fields
-            .get(key)
-            .ok_or_else(|| bad(format!("missing '{key}'")))?
-            .parse::<usize>()
-            .map_err(|_| bad(format!("'{key}' is not a non-negative integer")))
-    };
-    let (width, height, bands) = (int("samples")?, int("lines")?, int("bands")?);
-    let offset = fields
-        .get("header offset")
-        .map(|v| {
-            v.parse::<u64>()
-                .map_err(|_| bad("'header offset' is not an integer".into()))
-        })
-        .transpose()?
-        .unwrap_or(0);
-    let data_type = int("data type")?;
-    let bytes_per = match data_type {
-        1 => 1,
-        2 | 12 => 2,
-        4 => 4,
-        5 => 8,
-        other => {
-            return Err(bad(format!(
-                "data type {other} (supported: 1, 2, 4, 5, 12)"
-            )))
+/// What an ENVI header says about its cube, checked: sizes within limits, a known data
+/// type and interleave.
+#[derive(Debug, Clone)]
+struct EnviHeader {
+    width: usize,
+    height: usize,
+    bands: usize,
+    /// Bytes before the first value in the data file.
+    offset: u64,
+    data_type: usize,
+    bytes_per_value: usize,
+    interleave: Interleave,
+    big_endian: bool,
+    wavelengths: Option<Vec<f64>>,
+}
+
+/// How an ENVI file orders its values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Interleave {
+    /// Band sequential: `[band][y][x]`.
+    Bsq,
+    /// Band interleaved by line: `[y][band][x]`.
+    Bil,
+    /// Band interleaved by pixel: `[y][x][band]`.
+    Bip,
+}
+
+impl EnviHeader {
+    /// Reads and checks the header at `path`.
+    fn read(path: &Path) -> Result<EnviHeader> {
+        let size = std::fs::metadata(path)
+            .map_err(|e| Error::io(path, e))?
+            .len();
+        if size > MAX_ENVI_HEADER_BYTES {
+            return Err(Error::TooLarge {
+                op: format!("reading {}", path.display()),
+                what: "header size".into(),
+                size,
+                limit: MAX_ENVI_HEADER_BYTES,
+            });
         }
-    };
-    let interleave = fields
-        .get("interleave")
-        .map(|s| s.to_ascii_lowercase())
-        .unwrap_or_else(|| "bsq".into());
-    if !["bsq", "bil", "bip"].contains(&interleave.as_str()) {
-        return Err(bad(format!(
-            "interleave '{interleave}' (expected bsq, bil or bip)"
-        )));
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let fields = parse_header(&text).map_err(|message| Error::Parse {
+            context: path.display().to_string(),
+            line: 1,
+            message,
+        })?;
+        Self::from_fields(path, &fields)
     }
-    let big_endian = match fields.get("byte order").map(String::as_str) {
-        None | Some("0") => false,
-        Some("1") => true,
-        Some(other) => return Err(bad(format!("byte order '{other}' (expected 0 or 1)"))),
-    };
-    let values = width as u64 * height as u64 * bands as u64;
-    if values == 0 || values > MAX_RASTER_VALUES {
-        return Err(bad(format!(
-            "size {width}x{height}x{bands} is empty or over the limit"
-        )));
-    }
-    let wavelengths = match fields.get("wavelength") {
-        None => None,
-        Some(list) => {
-            let inner = list.trim().trim_start_matches('{').trim_end_matches('}');
-            let w = inner
-                .split(',')
-                .map(|s| s.trim().parse::<f64>())
-                .collect::<std::result::Result<Vec<_>, _>>()
-                .map_err(|_| bad("'wavelength' holds a non-number".into()))?;
-            if w.len() != bands {
-                return Err(bad(format!("{} wavelengths for {bands} bands", w.len())));
-            }
-            let micrometres = fields
-                .get("wavelength units")
-                .is_some_and(|u| u.to_ascii_lowercase().starts_with("micro"));
-            Some(if micrometres {
-                w.iter().map(|v| v * 1000.0).collect()
-            } else {
-                w
+
+    fn from_fields(path: &Path, fields: &HashMap<String, String>) -> Result<EnviHeader> {
+        let int = |key: &str| -> Result<usize> {
+            let value = fields
+                .get(key)
+                .ok_or_else(|| Error::bad_field(path, key, "missing", "a non-negative integer"))?;
+            value.parse::<usize>().map_err(|_| {
+                Error::bad_field(path, key, format!("'{value}'"), "a non-negative integer")
             })
-        }
-    };
-    let candidates = [
-        path.with_extension("img"),
-        path.with_extension("dat"),
-        path.with_extension("raw"),
-        path.with_extension(""),
-    ];
-    let data_file = candidates.iter().find(|p| p.is_file()).ok_or_else(|| {
-        bad("no data file beside the header (.img, .dat, .raw or no extension)".into())
-    })?;
-    let need = offset + values * bytes_per as u64;
-    let have = std::fs::metadata(data_file)
-        .map_err(|e| Error::io(data_file, e))?
-        .len();
-    if have < need {
-        return Err(bad(format!(
-            "{} holds {have} bytes (expected {need})",
-            data_file.display()
-        )));
+        };
+        let (width, height, bands) = (int("samples")?, int("lines")?, int("bands")?);
+        let values = (width as u64)
+            .checked_mul(height as u64)
+            .and_then(|v| v.checked_mul(bands as u64))
+            .filter(|&v| v > 0 && v <= MAX_RASTER_VALUES)
+            .ok_or_else(|| {
+                Error::bad_field(
+                    path,
+                    "samples × lines × bands",
+                    format!("{width} × {height} × {bands}"),
+                    format!("between 1 and {MAX_RASTER_VALUES} values"),
+                )
+            })?;
+        let offset = match fields.get("header offset") {
+            None => 0,
+            Some(v) => v.parse::<u64>().map_err(|_| {
+                Error::bad_field(
+                    path,
+                    "header offset",
+                    format!("'{v}'"),
+                    "a non-negative integer",
+                )
+            })?,
+        };
+        let data_type = int("data type")?;
+        let bytes_per_value = match data_type {
+            1 => 1,
+            2 | 12 => 2,
+            4 => 4,
+            5 => 8,
+            other => {
+                return Err(Error::UnsupportedFormat {
+                    file: path.into(),
+                    what: "data type".into(),
+                    found: other.to_string(),
+                    supported: "1, 2, 4, 5, 12".into(),
+                })
+            }
+        };
+        // The data's end must be representable: offset + values × bytes.
+        values
+            .checked_mul(bytes_per_value as u64)
+            .and_then(|bytes| bytes.checked_add(offset))
+            .ok_or_else(|| {
+                Error::bad_field(
+                    path,
+                    "header offset",
+                    offset,
+                    "an offset the data fits after",
+                )
+            })?;
+        Ok(EnviHeader {
+            width,
+            height,
+            bands,
+            offset,
+            data_type,
+            bytes_per_value,
+            interleave: interleave_of(path, fields)?,
+            big_endian: match fields.get("byte order").map(String::as_str) {
+                None | Some("0") => false,
+                Some("1") => true,
+                Some(other) => {
+                    return Err(Error::bad_field(
+                        path,
+                        "byte order",
+                        format!("'{other}'"),
+                        "0 or 1",
+                    ))
+                }
+            },
+            wavelengths: wavelengths_of(path, fields, bands)?,
+        })
     }
-    let raw = std::fs::read(data_file).map_err(|e| Error::io(data_file, e))?;
-    let raw = &raw[offset as usize..need as usize];
-    let decode = |i: usize| -> f32 {
-        let b = &raw[i * bytes_per..(i + 1) * bytes_per];
+
+    /// Values in the cube.
+    fn values(&self) -> usize {
+        self.width * self.height * self.bands
+    }
+
+    /// Bytes the data file must hold: the offset and every value.
+    fn data_bytes(&self) -> u64 {
+        self.offset + (self.values() * self.bytes_per_value) as u64
+    }
+
+    /// Value `i` of `raw` (the data after the offset) in the header's type and byte order.
+    fn decode(&self, raw: &[u8], i: usize) -> f32 {
+        let b = &raw[i * self.bytes_per_value..(i + 1) * self.bytes_per_value];
         macro_rules! num {
             ($t:ty) => {{
                 let arr = b.try_into().unwrap_or_default();
-                (if big_endian {
+                (if self.big_endian {
                     <$t>::from_be_bytes(arr)
                 } else {
                     <$t>::from_le_bytes(arr)
                 }) as f32
             }};
         }
-        match data_type {
+        match self.data_type {
             1 => b[0] as f32,
             2 => num!(i16),
             12 => num!(u16),
             4 => num!(f32),
             _ => num!(f64),
         }
+    }
+}
+
+fn interleave_of(path: &Path, fields: &HashMap<String, String>) -> Result<Interleave> {
+    match fields
+        .get("interleave")
+        .map(|s| s.to_ascii_lowercase())
+        .as_deref()
+    {
+        None | Some("bsq") => Ok(Interleave::Bsq),
+        Some("bil") => Ok(Interleave::Bil),
+        Some("bip") => Ok(Interleave::Bip),
+        Some(other) => Err(Error::UnsupportedFormat {
+            file: path.into(),
+            what: "interleave".into(),
+            found: format!("'{other}'"),
+            supported: "bsq, bil, bip".into(),
+        }),
+    }
+}
+
+/// The `wavelength` list in nm (micrometres converted), one per band; None when absent.
+fn wavelengths_of(
+    path: &Path,
+    fields: &HashMap<String, String>,
+    bands: usize,
+) -> Result<Option<Vec<f64>>> {
+    let Some(list) = fields.get("wavelength") else {
+        return Ok(None);
     };
-    let (w, h, n) = (width, height, bands);
-    let mut data = vec![0f32; values as usize];
+    let inner = list.trim().trim_start_matches('{').trim_end_matches('}');
+    let w = inner
+        .split(',')
+        .map(|s| s.trim().parse::<f64>())
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|_| Error::bad_field(path, "wavelength", "a non-number", "numbers"))?;
+    if w.len() != bands {
+        return Err(Error::bad_field(
+            path,
+            "wavelength",
+            format!("{} values", w.len()),
+            format!("one per band ({bands})"),
+        ));
+    }
+    let micrometres = fields
+        .get("wavelength units")
+        .is_some_and(|u| u.to_ascii_lowercase().starts_with("micro"));
+    Ok(Some(if micrometres {
+        w.iter().map(|v| v * 1000.0).collect()
+    } else {
+        w
+    }))
+}
+
+/// The data file beside `header`: `.img`, `.dat`, `.raw` or no extension.
+fn data_file_of(header: &Path) -> Result<PathBuf> {
+    let candidates = [
+        header.with_extension("img"),
+        header.with_extension("dat"),
+        header.with_extension("raw"),
+        header.with_extension(""),
+    ];
+    candidates
+        .into_iter()
+        .find(|p| p.is_file() && p != header)
+        .ok_or_else(|| Error::MissingFile {
+            path: header.with_extension("img"),
+            what: "the ENVI data file (.img, .dat, .raw or no extension) beside the header".into(),
+        })
+}
+
+/// Reads an ENVI cube given its header path; the data file is `.img`, `.dat`, `.raw`
+/// or the header path without extension, and must hold exactly what the header declares.
+pub fn read_envi(path: &Path) -> Result<EnviCube> {
+    let header = EnviHeader::read(path)?;
+    let data_file = data_file_of(path)?;
+    let expected = header.data_bytes();
+    let found = std::fs::metadata(&data_file)
+        .map_err(|e| Error::io(&data_file, e))?
+        .len();
+    if found != expected {
+        return Err(Error::FileSize {
+            path: data_file,
+            found,
+            expected,
+        });
+    }
+    let raw = std::fs::read(&data_file).map_err(|e| Error::io(&data_file, e))?;
+    let raw = &raw[header.offset as usize..];
+    let (w, h, n) = (header.width, header.height, header.bands);
+    let mut data = vec![0f32; header.values()];
     for y in 0..h {
         for x in 0..w {
             for b in 0..n {
-                let src = match interleave.as_str() {
-                    "bip" => (y * w + x) * n + b,
-                    "bil" => (y * n + b) * w + x,
-                    _ => (b * h + y) * w + x,
+                let src = match header.interleave {
+                    Interleave::Bip => (y * w + x) * n + b,
+                    Interleave::Bil => (y * n + b) * w + x,
+                    Interleave::Bsq => (b * h + y) * w + x,
                 };
-                data[(y * w + x) * n + b] = decode(src);
+                data[(y * w + x) * n + b] = header.decode(raw, src);
             }
         }
     }
     Ok(EnviCube {
-        width,
-        height,
-        bands,
-        wavelengths,
+        width: w,
+        height: h,
+        bands: n,
+        wavelengths: header.wavelengths,
         data,
     })
 }
@@ -336,38 +457,63 @@ mod tests {
     }
 
     #[test]
-    fn malformed_headers_are_errors() {
+    fn malformed_headers_are_errors_naming_the_field() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("y.hdr");
-        for (text, needle) in [
-            ("NOT ENVI\n", "first line"),
-            ("ENVI\nsamples = 2\n", "missing 'lines'"),
+        let base = "ENVI\nsamples = 2\nlines = 2\nbands = 1\n";
+        let cases: [(String, fn(&Error) -> bool, &str); 7] = [
             (
-                "ENVI\nsamples = 2\nlines = 2\nbands = 1\ndata type = 3\n",
-                "data type 3",
+                "NOT ENVI\n".into(),
+                |e| matches!(e, Error::Parse { .. }),
+                "first line",
             ),
             (
-                "ENVI\nsamples = 2\nlines = 2\nbands = 1\ndata type = 4\nwavelength = {1,\n",
+                "ENVI\nsamples = 2\n".into(),
+                |e| matches!(e, Error::BadField { field, .. } if field == "lines"),
+                "lines is missing",
+            ),
+            (
+                format!("{base}data type = 3\n"),
+                |e| matches!(e, Error::UnsupportedFormat { .. }),
+                "unsupported data type 3",
+            ),
+            (
+                format!("{base}data type = 4\nwavelength = {{1,\n"),
+                |e| matches!(e, Error::Parse { .. }),
                 "unterminated",
             ),
             (
-                "ENVI\nsamples = 2\nlines = 2\nbands = 1\ndata type = 4\n",
-                "no data file",
+                format!("{base}data type = 4\n"),
+                |e| matches!(e, Error::MissingFile { .. }),
+                "data file",
             ),
-        ] {
-            std::fs::write(&path, text).unwrap();
-            let err = read_envi(&path).unwrap_err().to_string();
-            assert!(err.contains(needle), "{text:?}: {err}");
+            (
+                format!("{base}data type = 4\nheader offset = 18446744073709551615\n"),
+                |e| matches!(e, Error::BadField { field, .. } if field == "header offset"),
+                "header offset",
+            ),
+            (
+                "ENVI\nsamples = 9223372036854775809\nlines = 2\nbands = 1\ndata type = 4\n".into(),
+                |e| matches!(e, Error::BadField { .. }),
+                "samples × lines × bands",
+            ),
+        ];
+        for (text, variant, needle) in cases {
+            std::fs::write(&path, &text).unwrap();
+            let err = read_envi(&path).unwrap_err();
+            assert!(variant(&err), "{text:?}: {err:?}");
+            assert!(err.to_string().contains(needle), "{text:?}: {err}");
         }
-        std::fs::write(
-            &path,
-            "ENVI\nsamples = 2\nlines = 2\nbands = 1\ndata type = 4\n",
-        )
-        .unwrap();
-        std::fs::write(dir.path().join("y.img"), [0u8; 8]).unwrap();
-        assert!(read_envi(&path)
-            .unwrap_err()
-            .to_string()
-            .contains("expected 16"));
+        // A data file shorter or longer than the header declares (a partial or stale
+        // file): 16 bytes expected.
+        std::fs::write(&path, format!("{base}data type = 4\n")).unwrap();
+        for bytes in [8usize, 24] {
+            std::fs::write(dir.path().join("y.img"), vec![0u8; bytes]).unwrap();
+            let err = read_envi(&path).unwrap_err();
+            assert!(
+                matches!(err, Error::FileSize { found, expected: 16, .. } if found == bytes as u64),
+                "{err:?}"
+            );
+        }
     }
 }

@@ -6,15 +6,9 @@ use super::{write_atomically, MAX_RASTER_VALUES};
 use crate::{Error, Result};
 use std::path::Path;
 
-/// A PFM raster, rows top to bottom in memory.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PfmImage {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    /// Row-major, top row first, channels interleaved.
-    pub data: Vec<f32>,
-}
+/// A PFM image: 1 (grey) or 3 (colour) channels, rows top first (the file stores them
+/// bottom first).
+pub type PfmImage = crate::image::Image<f32>;
 
 /// Writes a little-endian PFM (scale −1), bottom row first.
 pub fn write_pfm(path: &Path, image: &PfmImage) -> Result<()> {

@@ -38,7 +38,7 @@ pub use output::{write_light_field, OutputOptions};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
 pub use settings::{
-    PipelineSettings, DEFAULT_MAX_DISP, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
+    PipelineSettings, Preset, DEFAULT_MAX_DISP, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
 };
 pub use summary::ViewSummary;
 

@@ -13,7 +13,7 @@
 //!                                        per-stage timings, warnings, files
 //! ```
 
-use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe};
+use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
 use crate::io::{
     read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube, PfmImage,
 };
@@ -70,7 +70,7 @@ pub fn write_light_field(
     field: &LightField,
     options: &OutputOptions,
 ) -> Result<Vec<PathBuf>> {
-    let (w, h, nb) = (field.width, field.height, field.bands.len());
+    let (w, h) = (field.width, field.height);
     for &(x, y) in &options.probes {
         if x >= w || y >= h {
             return Err(Error::invalid(
@@ -86,6 +86,7 @@ pub fn write_light_field(
         create_dir(&dir.join("probes"))?;
     }
     let clock = std::time::Instant::now();
+    // One colour scale for every view's disparity preview.
     let max_disparity = field
         .views
         .iter()
@@ -95,97 +96,146 @@ pub fn write_light_field(
     let mut files = Vec::new();
     for view in &field.views {
         let name = format!("r{}c{}", view.row, view.col);
-        let cube_path = dir.join(format!("views/{name}.hdr"));
-        write_envi(
-            &cube_path,
-            &EnviCube {
-                width: w,
-                height: h,
-                bands: nb,
-                wavelengths: Some(field.bands.clone()),
-                data: view.reflectance.clone(),
-            },
-            &format!("anaglyph reconstructed reflectance, view {name}"),
-        )?;
-        files.push(cube_path.clone());
-        files.push(cube_path.with_extension("img"));
-        let pfm = dir.join(format!("disparity/{name}.pfm"));
-        write_pfm(
-            &pfm,
-            &PfmImage {
-                width: w,
-                height: h,
-                channels: 1,
-                data: view
-                    .disparity
-                    .iter()
-                    .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
-                    .collect(),
-            },
-        )?;
-        let png = dir.join(format!("disparity/{name}.png"));
-        write_disparity_preview(&png, &view.disparity, w, h, max_disparity)?;
-        files.extend([pfm, png]);
         let camera = rig
             .cameras
             .iter()
             .find(|c| (c.row, c.col) == (view.row, view.col))
             .ok_or_else(|| Error::invalid("output", format!("view {name} not in the rig")))?;
+        files.extend(write_cube(dir, &name, field, view)?);
+        files.extend(write_disparity(dir, &name, field, view, max_disparity)?);
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
         pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
         srgb_preview(&view.reflectance, w, h, &field.bands)?.save(&srgb)?;
         files.extend([pseudo, srgb]);
         if !options.probes.is_empty() {
-            let truth = match &options.truth {
-                Some(t) => Some(read_envi(&t.join(format!("truth/{name}.hdr")))?),
-                None => None,
-            };
-            if let Some(t) = &truth {
-                if (t.width, t.height, t.bands) != (w, h, nb) {
-                    return Err(Error::Shape {
-                        op: format!("probe truth of view {name}"),
-                        got: vec![t.width, t.height, t.bands],
-                        expected: vec![w, h, nb],
-                    });
-                }
-            }
-            let probes: Vec<Probe> = options
-                .probes
-                .iter()
-                .map(|&(x, y)| {
-                    let i = (y * w + x) * nb;
-                    Probe {
-                        label: format!("({x}, {y})"),
-                        estimate: view.reflectance[i..i + nb]
-                            .iter()
-                            .map(|&v| v as f64)
-                            .collect(),
-                        truth: truth
-                            .as_ref()
-                            .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
-                    }
-                })
-                .collect();
-            let svg = dir.join(format!("probes/{name}.svg"));
-            plot_probe(
-                &svg,
-                &format!("reflectance, view {name}"),
-                &field.bands,
-                &probes,
-            )?;
-            files.push(svg);
+            files.push(write_probes(dir, &name, field, view, options)?);
         }
     }
+    let manifest = write_manifest(dir, field, options, &files, clock.elapsed().as_secs_f64())?;
+    files.push(manifest);
+    Ok(files)
+}
+
+/// `views/NAME.hdr` and `.img`: the view's reflectance cube.
+fn write_cube(
+    dir: &Path,
+    name: &str,
+    field: &LightField,
+    view: &ReconstructedView,
+) -> Result<[PathBuf; 2]> {
+    let path = dir.join(format!("views/{name}.hdr"));
+    write_envi(
+        &path,
+        &EnviCube {
+            width: field.width,
+            height: field.height,
+            bands: field.bands.len(),
+            wavelengths: Some(field.bands.clone()),
+            data: view.reflectance.clone(),
+        },
+        &format!("anaglyph reconstructed reflectance, view {name}"),
+    )?;
+    let raw = path.with_extension("img");
+    Ok([path, raw])
+}
+
+/// `disparity/NAME.pfm` (+inf where unknown) and its colour-mapped preview.
+fn write_disparity(
+    dir: &Path,
+    name: &str,
+    field: &LightField,
+    view: &ReconstructedView,
+    max_disparity: f32,
+) -> Result<[PathBuf; 2]> {
+    let (w, h) = (field.width, field.height);
+    let pfm = dir.join(format!("disparity/{name}.pfm"));
+    write_pfm(
+        &pfm,
+        &PfmImage {
+            width: w,
+            height: h,
+            channels: 1,
+            data: view
+                .disparity
+                .iter()
+                .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
+                .collect(),
+        },
+    )?;
+    let png = dir.join(format!("disparity/{name}.png"));
+    write_disparity_preview(&png, &view.disparity, w, h, max_disparity)?;
+    Ok([pfm, png])
+}
+
+/// `probes/NAME.svg`: the spectra at the probe pixels, beside the simulator's truth when
+/// `options.truth` names a simulation.
+fn write_probes(
+    dir: &Path,
+    name: &str,
+    field: &LightField,
+    view: &ReconstructedView,
+    options: &OutputOptions,
+) -> Result<PathBuf> {
+    let (w, h, nb) = (field.width, field.height, field.bands.len());
+    let truth = match &options.truth {
+        Some(t) => Some(read_envi(&t.join(format!("truth/{name}.hdr")))?),
+        None => None,
+    };
+    if let Some(t) = &truth {
+        if (t.width, t.height, t.bands) != (w, h, nb) {
+            return Err(Error::Shape {
+                op: format!("probe truth of view {name}"),
+                got: vec![t.width, t.height, t.bands],
+                expected: vec![w, h, nb],
+            });
+        }
+    }
+    let probes: Vec<Probe> = options
+        .probes
+        .iter()
+        .map(|&(x, y)| {
+            let i = (y * w + x) * nb;
+            Probe {
+                label: format!("({x}, {y})"),
+                estimate: view.reflectance[i..i + nb]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .collect(),
+                truth: truth
+                    .as_ref()
+                    .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
+            }
+        })
+        .collect();
+    let svg = dir.join(format!("probes/{name}.svg"));
+    plot_probe(
+        &svg,
+        &format!("reflectance, view {name}"),
+        &field.bands,
+        &probes,
+    )?;
+    Ok(svg)
+}
+
+/// `manifest.json`, listing `files`: written last, so that a complete manifest means a
+/// complete folder.
+fn write_manifest(
+    dir: &Path,
+    field: &LightField,
+    options: &OutputOptions,
+    files: &[PathBuf],
+    writing_seconds: f64,
+) -> Result<PathBuf> {
     let mut timings = vec![("loading".to_string(), options.loading_seconds)];
     timings.extend(field.timings.iter().cloned());
-    timings.push(("writing".to_string(), clock.elapsed().as_secs_f64()));
+    timings.push(("writing".to_string(), writing_seconds));
     let manifest_path = dir.join("manifest.json");
     let manifest = Manifest {
         generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
         parameters: &options.parameters,
-        width: w,
-        height: h,
+        width: field.width,
+        height: field.height,
         bands_nm: &field.bands,
         condition_number: field.condition_number,
         calibration: &field.calibration,
@@ -208,6 +258,5 @@ pub fn write_light_field(
     let json = serde_json::to_string_pretty(&manifest)
         .map_err(|e| Error::invalid("manifest", e.to_string()))?;
     write_atomically(&manifest_path, |out| out.write_all(json.as_bytes()))?;
-    files.push(manifest_path);
-    Ok(files)
+    Ok(manifest_path)
 }

@@ -107,11 +107,14 @@ fn estimate_maps(
 }
 
 /// Per camera, the images multi-baseline registration compares by (empty: luminance),
-/// and the common signals they come from.
+/// and the common signals they come from (None: luminance).
+type MatchingImages = (Vec<Vec<GreyImage>>, Option<Vec<CommonSignal>>);
+
+/// The [`MatchingImages`] of the calibrated views.
 fn matching_images(
     calibrated: &CalibratedArray,
     settings: &PipelineSettings<'_>,
-) -> Result<(Vec<Vec<GreyImage>>, Option<Vec<CommonSignal>>)> {
+) -> Result<MatchingImages> {
     let views = &calibrated.views;
     let by_common_signals = settings.matching_image == MatchingImage::CommonSignals
         && settings.registration.mode == RegistrationMode::MultiBaseline;

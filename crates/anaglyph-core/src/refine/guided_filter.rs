@@ -6,6 +6,7 @@
 //! measurements agree) lets reliable pixels dominate the fits. Box sums are running sums: O(1) per pixel at
 //! any radius.
 
+use crate::image::Image;
 use crate::{Error, Result};
 use rayon::prelude::*;
 
@@ -26,21 +27,26 @@ pub struct GuidedFilter {
 /// Weight under which a window is treated as empty (no fit): a thousandth of one pixel.
 const EMPTY_WINDOW: f32 = 1e-3;
 
-/// Filters `input` (`height × width × bands`, interleaved) with `guide` (`height × width ×
-/// channels`). `weights` (one per pixel, ≥ 0; None: all 1) weigh each pixel in the fits.
-/// Pixels where the input or the guide is not finite weigh nothing and keep their input
-/// value (NaN stays NaN).
-#[allow(clippy::too_many_arguments)]
+/// Filters `input` (its channels are the bands) with `guide` of the same size. `weights`
+/// (one per pixel, ≥ 0; None: all 1) weigh each pixel in the fits. Pixels where the input
+/// or the guide is not finite weigh nothing and keep their input value (NaN stays NaN).
+/// Returns the filtered values in `input`'s layout.
 pub fn guided_filter(
-    guide: &[f32],
-    channels: usize,
+    guide: &Image<f32>,
+    input: &Image<f32>,
     weights: Option<&[f32]>,
-    input: &[f32],
-    bands: usize,
-    width: usize,
-    height: usize,
     filter: GuidedFilter,
 ) -> Result<Vec<f32>> {
+    let (width, height) = (input.width, input.height);
+    let (channels, bands) = (guide.channels, input.channels);
+    if (guide.width, guide.height) != (width, height) {
+        return Err(Error::Shape {
+            op: "guided filter: guide against input".into(),
+            got: vec![guide.width, guide.height],
+            expected: vec![width, height],
+        });
+    }
+    let (guide, input) = (guide.data.as_slice(), input.data.as_slice());
     let n = width * height;
     if channels == 0 || channels > MAX_GUIDE_CHANNELS {
         return Err(Error::invalid(
@@ -442,6 +448,16 @@ fn running_sum(values: &[f64], r: usize, out: &mut [f32]) {
 mod tests {
     use super::*;
 
+    /// An image over `data` without the constructor's checks (bad sizes are under test).
+    fn img(data: &[f32], width: usize, height: usize, channels: usize) -> Image<f32> {
+        Image {
+            width,
+            height,
+            channels,
+            data: data.to_vec(),
+        }
+    }
+
     fn brute_box_sum(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
         let mut out = vec![0.0; w * h];
         for y in 0..h {
@@ -493,7 +509,13 @@ mod tests {
             radius: 3,
             epsilon: 1e-8,
         };
-        let output = guided_filter(&guide, g, None, &input, bands, w, h, filter).unwrap();
+        let output = guided_filter(
+            &img(&guide, w, h, g),
+            &img(&input, w, h, bands),
+            None,
+            filter,
+        )
+        .unwrap();
         for (a, b) in output.iter().zip(&input) {
             assert!((a - b).abs() < 1e-4, "{a} vs {b}");
         }
@@ -515,7 +537,8 @@ mod tests {
             radius: 2,
             epsilon: 1e-4,
         };
-        let output = guided_filter(&guide, 1, None, &input, 1, w, h, filter).unwrap();
+        let output =
+            guided_filter(&img(&guide, w, h, 1), &img(&input, w, h, 1), None, filter).unwrap();
         let rms = |v: &[f32]| {
             let s: f32 = v
                 .iter()
@@ -541,7 +564,13 @@ mod tests {
             radius: 2,
             epsilon: 1e-4,
         };
-        let output = guided_filter(&guide_with_gap, 1, None, &input, 1, w, h, filter).unwrap();
+        let output = guided_filter(
+            &img(&guide_with_gap, w, h, 1),
+            &img(&input, w, h, 1),
+            None,
+            filter,
+        )
+        .unwrap();
         assert!(output[11].is_nan());
         assert_eq!(output[55], 100.0);
         for (i, v) in output.iter().enumerate() {
@@ -565,7 +594,13 @@ mod tests {
             radius: 1,
             epsilon: 1e-4,
         };
-        let output = guided_filter(&guide, 1, Some(&weights), &input, 1, w, h, filter).unwrap();
+        let output = guided_filter(
+            &img(&guide, w, h, 1),
+            &img(&input, w, h, 1),
+            Some(&weights),
+            filter,
+        )
+        .unwrap();
         for y in 0..h {
             for x in 0..4 {
                 assert_eq!(output[y * w + x], input[y * w + x], "({x}, {y})");
@@ -576,7 +611,13 @@ mod tests {
             }
         }
         let negative = vec![-1.0f32; w * h];
-        assert!(guided_filter(&guide, 1, Some(&negative), &input, 1, w, h, filter).is_err());
+        assert!(guided_filter(
+            &img(&guide, w, h, 1),
+            &img(&input, w, h, 1),
+            Some(&negative),
+            filter
+        )
+        .is_err());
     }
 
     #[test]
@@ -585,12 +626,30 @@ mod tests {
             radius: 1,
             epsilon: 1e-4,
         };
-        assert!(guided_filter(&[0.0; 4], 1, None, &[0.0; 3], 1, 2, 2, filter).is_err());
-        assert!(guided_filter(&[0.0; 20], 5, None, &[0.0; 4], 1, 2, 2, filter).is_err());
+        assert!(guided_filter(
+            &img(&[0.0; 4], 2, 2, 1),
+            &img(&[0.0; 3], 2, 2, 1),
+            None,
+            filter
+        )
+        .is_err());
+        assert!(guided_filter(
+            &img(&[0.0; 20], 2, 2, 5),
+            &img(&[0.0; 4], 2, 2, 1),
+            None,
+            filter
+        )
+        .is_err());
         let zero = GuidedFilter {
             epsilon: 0.0,
             ..filter
         };
-        assert!(guided_filter(&[0.0; 4], 1, None, &[0.0; 4], 1, 2, 2, zero).is_err());
+        assert!(guided_filter(
+            &img(&[0.0; 4], 2, 2, 1),
+            &img(&[0.0; 4], 2, 2, 1),
+            None,
+            zero
+        )
+        .is_err());
     }
 }

@@ -11,7 +11,7 @@
 //! of the capture and averages the noise. Pixels weigh by how well one spectrum explains
 //! their warped measurements ([`crate::solve::confidence_weights`]), so misregistered pixels hardly
 //! enter the fits. On the paper rig's tabletop at 640×480 this takes the reference view
-//! from 29.5 to 35.4 dB (README, "Refinement").
+//! from 29.5 to 35.4 dB (docs/reconstruction.md, "Refinement").
 //!
 //! In: a view's reflectance (`pixels × bands`, NaN where unmeasured), its white-normalised
 //! capture. Out: the refined reflectance; unmeasured pixels stay NaN, and pixels whose own
@@ -21,6 +21,7 @@ mod guided_filter;
 
 pub use guided_filter::{guided_filter, GuidedFilter, MAX_GUIDE_CHANNELS};
 
+use crate::image::Image;
 use crate::register::NormalisedView;
 use crate::{Error, Result};
 use serde::Serialize;
@@ -45,21 +46,21 @@ impl GuidedRefinement {
     pub fn validate(&self) -> Result<()> {
         if self.radius == 0 {
             return Err(Error::OutOfRange {
-                setting: "refinement radius",
+                setting: "refinement radius".into(),
                 value: 0.0,
                 expected: "at least 1 pixel".into(),
             });
         }
         if !(self.epsilon > 0.0) || !self.epsilon.is_finite() {
             return Err(Error::OutOfRange {
-                setting: "refinement epsilon",
+                setting: "refinement epsilon".into(),
                 value: self.epsilon,
                 expected: "a finite value > 0".into(),
             });
         }
         match self.confidence_scale {
             Some(scale) if !(scale > 0.0) || !scale.is_finite() => Err(Error::OutOfRange {
-                setting: "refinement confidence",
+                setting: "refinement confidence".into(),
                 value: scale,
                 expected: "a finite value > 0".into(),
             }),
@@ -110,14 +111,12 @@ pub fn refine_view(
                 .map(|(&v, &r)| (v as f64 / r) as f32)
         })
         .collect();
+    let guide = Image::new(view.width, view.height, view.channels, guide)?;
+    let input = Image::new(view.width, view.height, bands, std::mem::take(reflectance))?;
     *reflectance = guided_filter(
         &guide,
-        view.channels,
+        &input,
         weights,
-        reflectance,
-        bands,
-        view.width,
-        view.height,
         GuidedFilter {
             radius: settings.radius,
             epsilon: settings.epsilon,

@@ -92,7 +92,7 @@ pub enum RegistrationMode {
 }
 
 /// The mode `anaglyph reconstruct` and the demo use unless told otherwise (measured in
-/// `examples/light_field_quality.rs`; see the README).
+/// `examples/light_field_quality.rs`; see docs/reconstruction.md).
 pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseline;
 
 /// What registration needs besides the images.

@@ -17,12 +17,12 @@
 //!                                       rig.toml when poses are jittered
 //! ```
 
-use super::Simulation;
+use super::{RenderedView, Simulation};
 use crate::io::{
     write_atomically, write_envi, write_pfm, write_png16, EnviCube, LinearImage, PfmImage,
 };
 use crate::rectify::CameraModel;
-use crate::rig::Rig;
+use crate::rig::{Rig, RigFile};
 use crate::scene::SceneFile;
 use crate::{Error, Result};
 use serde::Serialize;
@@ -68,98 +68,14 @@ pub fn write_simulation(
     for sub in ["captures", "white", "truth", "calibration"] {
         create_dir(&dir.join(sub))?;
     }
-    let (w, h) = (simulation.settings.width, simulation.settings.height);
     let mut files = Vec::new();
     let mut records = Vec::new();
-    let mut rig_file = rig.file.clone();
     for view in &simulation.views {
-        let name = format!("r{}c{}", view.row, view.col);
-        let capture = format!("captures/{name}.png");
-        let white = format!("white/{name}.png");
-        let truth = format!("truth/{name}.hdr");
-        let disparity = format!("truth/{name}_disparity.pfm");
-        let depth = format!("truth/{name}_depth.pfm");
-        let image = |data: &[f32]| LinearImage {
-            width: w,
-            height: h,
-            channels: view.channels,
-            bit_depth: 16,
-            data: data.to_vec(),
-        };
-        write_png16(&dir.join(&capture), &image(&view.capture))?;
-        write_png16(&dir.join(&white), &image(&view.white))?;
-        let cube = EnviCube {
-            width: w,
-            height: h,
-            bands: simulation.bands.len(),
-            wavelengths: Some(simulation.bands.clone()),
-            data: view.truth.clone(),
-        };
-        write_envi(
-            &dir.join(&truth),
-            &cube,
-            &format!("anaglyph simulated reflectance, scene {}", scene.name),
-        )?;
-        let plane = |data: &[f32]| PfmImage {
-            width: w,
-            height: h,
-            channels: 1,
-            data: data.to_vec(),
-        };
-        write_pfm(&dir.join(&disparity), &plane(&view.disparity))?;
-        write_pfm(&dir.join(&depth), &plane(&view.depth))?;
-        if let Some(entry) = rig_file
-            .cameras
-            .iter_mut()
-            .find(|c| c.row == view.row && c.col == view.col)
-        {
-            entry.image = Some(PathBuf::from(&capture));
-            entry.white = Some(PathBuf::from(&white));
-            entry.exposure = Some(view.exposure);
-            if simulation.settings.pose_jitter.is_some() {
-                entry.calibration = Some(PathBuf::from(format!("calibration/{name}.json")));
-            }
-        }
-        let finite = view.disparity.iter().filter(|v| v.is_finite());
-        let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
-            [a.min(v), b.max(v)]
-        });
-        for f in [&capture, &white, &truth, &disparity, &depth] {
-            files.push(dir.join(f));
-        }
-        files.push(dir.join(format!("truth/{name}.img")));
-        let calibration = dir.join(format!("calibration/{name}.json"));
-        let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
-        write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
-        files.push(calibration);
-        records.push(ViewRecord {
-            row: view.row,
-            col: view.col,
-            capture,
-            white,
-            truth,
-            disparity,
-            depth,
-            exposure: view.exposure,
-            saturated_values: view.saturated,
-            disparity_range: range,
-        });
+        let (record, written) = write_view(dir, scene, simulation, view)?;
+        records.push(record);
+        files.extend(written);
     }
-    // Curve references in the rig file are relative to its folder; keep built-ins as they are
-    // and make file paths absolute so the copied rig still finds them.
-    let absolutise = |r: &str| {
-        if r.starts_with(crate::rig::BUILTIN_PREFIX) || Path::new(r).is_absolute() {
-            r.to_string()
-        } else {
-            rig.base_dir.join(r).display().to_string()
-        }
-    };
-    rig_file.sensor = absolutise(&rig_file.sensor);
-    rig_file.illuminant = rig_file.illuminant.as_deref().map(absolutise);
-    for cam in &mut rig_file.cameras {
-        cam.filter = absolutise(&cam.filter);
-        cam.sensor = cam.sensor.as_deref().map(absolutise);
-    }
+    let rig_file = simulated_rig_file(rig, simulation);
     rig_file.save(&dir.join("rig.toml"))?;
     let scene_text = scene.to_toml_string()?;
     write_atomically(&dir.join("scene.toml"), |w| {
@@ -190,4 +106,117 @@ pub fn write_simulation(
         dir.join("contact_sheet.png"),
     ]);
     Ok(files)
+}
+
+/// One view's capture, white board, truth cube, disparity, depth and calibration; its
+/// manifest record and the files written.
+fn write_view(
+    dir: &Path,
+    scene: &SceneFile,
+    simulation: &Simulation,
+    view: &RenderedView,
+) -> Result<(ViewRecord, Vec<PathBuf>)> {
+    let (w, h) = (simulation.settings.width, simulation.settings.height);
+    let name = format!("r{}c{}", view.row, view.col);
+    let record = ViewRecord {
+        row: view.row,
+        col: view.col,
+        capture: format!("captures/{name}.png"),
+        white: format!("white/{name}.png"),
+        truth: format!("truth/{name}.hdr"),
+        disparity: format!("truth/{name}_disparity.pfm"),
+        depth: format!("truth/{name}_depth.pfm"),
+        exposure: view.exposure,
+        saturated_values: view.saturated,
+        disparity_range: finite_range(&view.disparity),
+    };
+    let image = |data: &[f32]| LinearImage {
+        width: w,
+        height: h,
+        channels: view.channels,
+        bit_depth: 16,
+        data: data.to_vec(),
+    };
+    write_png16(&dir.join(&record.capture), &image(&view.capture))?;
+    write_png16(&dir.join(&record.white), &image(&view.white))?;
+    let cube = EnviCube {
+        width: w,
+        height: h,
+        bands: simulation.bands.len(),
+        wavelengths: Some(simulation.bands.clone()),
+        data: view.truth.clone(),
+    };
+    write_envi(
+        &dir.join(&record.truth),
+        &cube,
+        &format!("anaglyph simulated reflectance, scene {}", scene.name),
+    )?;
+    let plane = |data: &[f32]| PfmImage {
+        width: w,
+        height: h,
+        channels: 1,
+        data: data.to_vec(),
+    };
+    write_pfm(&dir.join(&record.disparity), &plane(&view.disparity))?;
+    write_pfm(&dir.join(&record.depth), &plane(&view.depth))?;
+    let mut files: Vec<PathBuf> = [
+        &record.capture,
+        &record.white,
+        &record.truth,
+        &record.disparity,
+        &record.depth,
+    ]
+    .into_iter()
+    .map(|f| dir.join(f))
+    .collect();
+    files.push(dir.join(format!("truth/{name}.img")));
+    let calibration = dir.join(format!("calibration/{name}.json"));
+    let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
+    write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
+    files.push(calibration);
+    Ok((record, files))
+}
+
+/// Smallest and largest finite value.
+fn finite_range(values: &[f32]) -> [f32; 2] {
+    let finite = values.iter().filter(|v| v.is_finite());
+    finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
+        [a.min(v), b.max(v)]
+    })
+}
+
+/// The rig file of the simulation's folder: each camera's capture, white board, exposure
+/// (and calibration, with pose jitter) filled in; curve references that are files made
+/// absolute, so that the copied rig still finds them (built-ins stay as they are).
+fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
+    let mut rig_file = rig.file.clone();
+    for view in &simulation.views {
+        let name = format!("r{}c{}", view.row, view.col);
+        if let Some(entry) = rig_file
+            .cameras
+            .iter_mut()
+            .find(|c| c.row == view.row && c.col == view.col)
+        {
+            entry.image = Some(PathBuf::from(format!("captures/{name}.png")));
+            entry.white = Some(PathBuf::from(format!("white/{name}.png")));
+            entry.exposure = Some(view.exposure);
+            if simulation.settings.pose_jitter.is_some() {
+                entry.calibration = Some(PathBuf::from(format!("calibration/{name}.json")));
+            }
+        }
+    }
+    let absolutise = |r: &str| {
+        if r.starts_with(crate::rig::BUILTIN_PREFIX) || Path::new(r).is_absolute() {
+            r.to_string()
+        } else {
+            rig.base_dir.join(r).display().to_string()
+        }
+    };
+    rig_file.sensor = absolutise(&rig_file.sensor);
+    rig_file.illuminant = rig_file.illuminant.as_deref().map(absolutise);
+    for cam in &mut rig_file.cameras {
+        cam.filter = absolutise(&cam.filter);
+        cam.sensor = cam.sensor.as_deref().map(absolutise);
+    }
+    rig_file
 }

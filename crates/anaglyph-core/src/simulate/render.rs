@@ -6,6 +6,7 @@ use crate::scene::{
     rotate, rotation, MetamerVariation, PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler,
     Vec3, UPSAMPLING_SHAPE,
 };
+use crate::spectrum::SpectralShape;
 use crate::{Error, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -115,14 +116,47 @@ pub fn render_view(
     );
     let camera =
         PinholeCamera::on_grid(cam.row, cam.col, baseline, rig.file.focal_length_px, (w, h));
-    let rows_of_camera: Vec<usize> = (0..render_c.rows())
-        .filter(|&r| render_c.row_labels[r].starts_with(&format!("r{}c{}:", cam.row, cam.col)))
+    let label = format!("r{}c{}:", cam.row, cam.col);
+    let tracer = Tracer {
+        scene,
+        settings,
+        sampler,
+        render_c,
+        rows_of_camera: (0..render_c.rows())
+            .filter(|&r| render_c.row_labels[r].starts_with(&label))
+            .collect(),
+        band_taps: band_taps(&rig.reconstruction_shape()?),
+    };
+    let (clean_ideal, truth, depth) = tracer.trace(&camera);
+    let (clean, capture_camera) = match jittered(settings, camera_index, &camera) {
+        None => (clean_ideal, camera),
+        Some(perturbed) => (tracer.trace(&perturbed).0, perturbed),
+    };
+    let disparity: Vec<f32> = depth
+        .iter()
+        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64) as f32)
         .collect();
-    let channels = rows_of_camera.len();
-    let bands = rig.reconstruction_shape()?;
+    let exposed = tracer.expose(camera_index, &clean);
+    Ok(RenderedView {
+        row: cam.row,
+        col: cam.col,
+        capture: exposed.capture,
+        white: exposed.white,
+        channels: tracer.rows_of_camera.len(),
+        clean,
+        truth,
+        depth,
+        disparity,
+        exposure: exposed.exposure,
+        saturated: exposed.saturated,
+        camera: capture_camera,
+    })
+}
+
+/// Linear interpolation taps of each band centre on the 5 nm grid of the spectra.
+fn band_taps(bands: &SpectralShape) -> Vec<(usize, f64)> {
     let n = UPSAMPLING_SHAPE.count;
-    // Linear interpolation weights of the band centres on the 5 nm grid.
-    let band_taps: Vec<(usize, f64)> = bands
+    bands
         .wavelengths()
         .iter()
         .map(|&l| {
@@ -130,197 +164,182 @@ pub fn render_view(
             let i = (x.floor() as usize).min(n - 2);
             (i, x - i as f64)
         })
-        .collect();
-    let nb = bands.count;
-    let (clean_ideal, truth, depth) = trace_view(
-        scene,
-        &camera,
-        settings,
-        sampler,
-        render_c,
-        &rows_of_camera,
-        &band_taps,
-        nb,
-    );
+        .collect()
+}
+
+/// The camera that takes the capture: `camera` moved by the seeded pose jitter (None:
+/// no jitter asked; the capture is taken from the ideal pose).
+fn jittered(
+    settings: &SimulationSettings,
+    camera_index: usize,
+    camera: &PinholeCamera,
+) -> Option<PinholeCamera> {
+    let jitter = settings.pose_jitter?;
     let mut rng_pose = ChaCha8Rng::seed_from_u64(
         settings.seed ^ 0x05EE_D0F5 ^ (camera_index as u64).wrapping_mul(0x2545_F491),
     );
-    let (clean, capture_camera) = match settings.pose_jitter {
-        None => (clean_ideal, camera.clone()),
-        Some(jitter) => {
-            let mut u = || rng_pose.random::<f64>() * 2.0 - 1.0;
-            let angles = [
-                u() * jitter.rotation_deg,
-                u() * jitter.rotation_deg,
-                u() * jitter.rotation_deg,
-            ];
-            let offset = Vec3::new(
-                u() * jitter.offset_mm,
-                u() * jitter.offset_mm,
-                u() * jitter.offset_mm,
-            );
-            let perturbed = PinholeCamera {
-                centre: camera.centre + offset,
-                rotation: rotation(angles),
-                ..camera.clone()
-            };
-            let (clean, _, _) = trace_view(
-                scene,
-                &perturbed,
-                settings,
-                sampler,
-                render_c,
-                &rows_of_camera,
-                &band_taps,
-                nb,
-            );
-            (clean, perturbed)
-        }
-    };
-    let disparity: Vec<f32> = depth
-        .iter()
-        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64) as f32)
-        .collect();
-
-    // Exposure of this camera and its noisy captures.
-    let mut rng =
-        ChaCha8Rng::seed_from_u64(settings.seed ^ (camera_index as u64).wrapping_mul(0x9E37_79B9));
-    let jitter: f64 = rng.random();
-    let white_signal: Vec<f64> = rows_of_camera
-        .iter()
-        .map(|&r| settings.white_reflectance * render_c.row(r).iter().sum::<f64>())
-        .collect();
-    let (capture, white, exposure, saturated) = match settings.noise {
-        Some(noise) => {
-            let exposure = noise.exposure * (1.0 - settings.exposure_jitter * jitter);
-            let camera_noise = CameraNoise { exposure, ..noise };
-            let noisy = camera_noise.apply(
-                &clean.iter().map(|&v| v as f64).collect::<Vec<_>>(),
-                rng.random(),
-            );
-            let whites: Vec<f64> = white_signal
-                .iter()
-                .copied()
-                .cycle()
-                .take(w * h * channels)
-                .collect();
-            let white = camera_noise.apply(&whites, rng.random());
-            let to_capture = |v: &[f64]| {
-                v.iter()
-                    .map(|&p| (p * exposure).clamp(0.0, 1.0) as f32)
-                    .collect::<Vec<f32>>()
-            };
-            (
-                to_capture(&noisy.values),
-                to_capture(&white.values),
-                exposure,
-                noisy.saturated.iter().filter(|s| **s).count(),
-            )
-        }
-        None => {
-            let exposure = 0.9;
-            let white: Vec<f32> = white_signal
-                .iter()
-                .copied()
-                .cycle()
-                .take(w * h * channels)
-                .map(|v| (v * exposure) as f32)
-                .collect();
-            (
-                clean
-                    .iter()
-                    .map(|&v| (v as f64 * exposure).min(1.0) as f32)
-                    .collect(),
-                white,
-                exposure,
-                0,
-            )
-        }
-    };
-    Ok(RenderedView {
-        row: cam.row,
-        col: cam.col,
-        capture,
-        white,
-        channels,
-        clean,
-        truth,
-        depth,
-        disparity,
-        exposure,
-        saturated,
-        camera: capture_camera,
+    let mut u = || rng_pose.random::<f64>() * 2.0 - 1.0;
+    let angles = [
+        u() * jitter.rotation_deg,
+        u() * jitter.rotation_deg,
+        u() * jitter.rotation_deg,
+    ];
+    let offset = Vec3::new(
+        u() * jitter.offset_mm,
+        u() * jitter.offset_mm,
+        u() * jitter.offset_mm,
+    );
+    Some(PinholeCamera {
+        centre: camera.centre + offset,
+        rotation: rotation(angles),
+        ..camera.clone()
     })
 }
 
-/// Casts every ray of `camera`: returns the noise-free signal (`h × w × channels`), the
-/// reflectance at the band centres (`h × w × bands`) and the depth along the optical axis.
-#[allow(clippy::too_many_arguments)]
-fn trace_view(
-    scene: &Scene,
-    camera: &PinholeCamera,
-    settings: &SimulationSettings,
-    sampler: &SpectrumSampler,
-    render_c: &SensingMatrix,
-    rows_of_camera: &[usize],
-    band_taps: &[(usize, f64)],
-    nb: usize,
-) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    let (w, h, ss) = (settings.width, settings.height, settings.supersampling);
-    let channels = rows_of_camera.len();
-    let n = UPSAMPLING_SHAPE.count;
-    let axis = rotate(&camera.rotation, Vec3::new(0.0, 0.0, 1.0));
-    let mut clean = vec![0f32; w * h * channels];
-    let mut truth = vec![0f32; w * h * nb];
-    let mut depth = vec![0f32; w * h];
-    clean
-        .par_chunks_mut(w * channels)
-        .zip(truth.par_chunks_mut(w * nb))
-        .zip(depth.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, ((clean_row, truth_row), depth_row))| {
-            let mut acc = vec![0.0; n];
-            let mut scratch = vec![0.0; n];
-            let weight = 1.0 / (ss * ss) as f64;
-            for x in 0..w {
-                acc.fill(0.0);
-                for j in 0..ss {
-                    for i in 0..ss {
-                        let ray = camera.ray(
-                            x as f64 + (i as f64 + 0.5) / ss as f64,
-                            y as f64 + (j as f64 + 0.5) / ss as f64,
-                        );
-                        if let Some((object, hit)) = scene.trace(&ray) {
-                            sampler.accumulate(
-                                &scene.objects[object].material,
-                                hit.u,
-                                hit.v,
-                                weight,
-                                &mut acc,
-                                &mut scratch,
-                            );
-                        }
+/// A camera's noisy capture and white board in [0, 1], its exposure and how many values
+/// saturated.
+struct Exposed {
+    capture: Vec<f32>,
+    white: Vec<f32>,
+    exposure: f64,
+    saturated: usize,
+}
+
+/// What every ray of one camera needs: the scene, the spectra's sampler, the camera's rows
+/// of the rendering C and the band taps of the truth.
+struct Tracer<'a> {
+    scene: &'a Scene,
+    settings: &'a SimulationSettings,
+    sampler: &'a SpectrumSampler,
+    render_c: &'a SensingMatrix,
+    rows_of_camera: Vec<usize>,
+    band_taps: Vec<(usize, f64)>,
+}
+
+impl Tracer<'_> {
+    /// Exposes the noise-free signal `clean`: the camera's seeded exposure, sensor noise
+    /// (when the settings have it), clipping; the white board the same way.
+    fn expose(&self, camera_index: usize, clean: &[f32]) -> Exposed {
+        let settings = self.settings;
+        let channels = self.rows_of_camera.len();
+        let values = settings.width * settings.height * channels;
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            settings.seed ^ (camera_index as u64).wrapping_mul(0x9E37_79B9),
+        );
+        let jitter: f64 = rng.random();
+        let white_signal: Vec<f64> = self
+            .rows_of_camera
+            .iter()
+            .map(|&r| settings.white_reflectance * self.render_c.row(r).iter().sum::<f64>())
+            .collect();
+        let whites = white_signal.iter().copied().cycle().take(values);
+        let Some(noise) = settings.noise else {
+            let exposure = 0.9;
+            return Exposed {
+                capture: clean
+                    .iter()
+                    .map(|&v| (v as f64 * exposure).min(1.0) as f32)
+                    .collect(),
+                white: whites.map(|v| (v * exposure) as f32).collect(),
+                exposure,
+                saturated: 0,
+            };
+        };
+        let exposure = noise.exposure * (1.0 - settings.exposure_jitter * jitter);
+        let camera_noise = CameraNoise { exposure, ..noise };
+        let noisy = camera_noise.apply(
+            &clean.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+            rng.random(),
+        );
+        let white = camera_noise.apply(&whites.collect::<Vec<f64>>(), rng.random());
+        let to_capture = |v: &[f64]| {
+            v.iter()
+                .map(|&p| (p * exposure).clamp(0.0, 1.0) as f32)
+                .collect::<Vec<f32>>()
+        };
+        Exposed {
+            capture: to_capture(&noisy.values),
+            white: to_capture(&white.values),
+            exposure,
+            saturated: noisy.saturated.iter().filter(|s| **s).count(),
+        }
+    }
+
+    /// Casts every ray of `camera`: returns the noise-free signal (`h × w × channels`), the
+    /// reflectance at the band centres (`h × w × bands`) and the depth along the optical
+    /// axis.
+    fn trace(&self, camera: &PinholeCamera) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+        let settings = self.settings;
+        let (w, h) = (settings.width, settings.height);
+        let (channels, nb) = (self.rows_of_camera.len(), self.band_taps.len());
+        let axis = rotate(&camera.rotation, Vec3::new(0.0, 0.0, 1.0));
+        let mut clean = vec![0f32; w * h * channels];
+        let mut truth = vec![0f32; w * h * nb];
+        let mut depth = vec![0f32; w * h];
+        clean
+            .par_chunks_mut(w * channels)
+            .zip(truth.par_chunks_mut(w * nb))
+            .zip(depth.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, ((clean_row, truth_row), depth_row))| {
+                let mut acc = vec![0.0; UPSAMPLING_SHAPE.count];
+                let mut scratch = vec![0.0; UPSAMPLING_SHAPE.count];
+                for x in 0..w {
+                    self.pixel_spectrum(camera, x, y, &mut acc, &mut scratch);
+                    for (k, &r) in self.rows_of_camera.iter().enumerate() {
+                        clean_row[x * channels + k] =
+                            self.render_c
+                                .row(r)
+                                .iter()
+                                .zip(&acc)
+                                .map(|(c, s)| c * s)
+                                .sum::<f64>() as f32;
                     }
+                    for (b, &(i, f)) in self.band_taps.iter().enumerate() {
+                        truth_row[x * nb + b] = (acc[i] * (1.0 - f) + acc[i + 1] * f) as f32;
+                    }
+                    let centre = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
+                    depth_row[x] = match self.scene.trace(&centre) {
+                        Some((_, hit)) => (centre.direction.dot(axis) * hit.t) as f32,
+                        None => f32::INFINITY,
+                    };
                 }
-                for (k, &r) in rows_of_camera.iter().enumerate() {
-                    clean_row[x * channels + k] = render_c
-                        .row(r)
-                        .iter()
-                        .zip(&acc)
-                        .map(|(c, s)| c * s)
-                        .sum::<f64>() as f32;
+            });
+        (clean, truth, depth)
+    }
+
+    /// The mean reflectance spectrum of pixel (x, y) over its supersampled rays, on the
+    /// 5 nm grid, into `acc`.
+    fn pixel_spectrum(
+        &self,
+        camera: &PinholeCamera,
+        x: usize,
+        y: usize,
+        acc: &mut [f64],
+        scratch: &mut [f64],
+    ) {
+        let ss = self.settings.supersampling;
+        let weight = 1.0 / (ss * ss) as f64;
+        acc.fill(0.0);
+        for j in 0..ss {
+            for i in 0..ss {
+                let ray = camera.ray(
+                    x as f64 + (i as f64 + 0.5) / ss as f64,
+                    y as f64 + (j as f64 + 0.5) / ss as f64,
+                );
+                if let Some((object, hit)) = self.scene.trace(&ray) {
+                    self.sampler.accumulate(
+                        &self.scene.objects[object].material,
+                        hit.u,
+                        hit.v,
+                        weight,
+                        acc,
+                        scratch,
+                    );
                 }
-                for (b, &(i, f)) in band_taps.iter().enumerate() {
-                    truth_row[x * nb + b] = (acc[i] * (1.0 - f) + acc[i + 1] * f) as f32;
-                }
-                let centre = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
-                depth_row[x] = match scene.trace(&centre) {
-                    Some((_, hit)) => (centre.direction.dot(axis) * hit.t) as f32,
-                    None => f32::INFINITY,
-                };
             }
-        });
-    (clean, truth, depth)
+        }
+    }
 }
 
 impl Simulation {

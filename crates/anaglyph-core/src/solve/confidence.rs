@@ -38,7 +38,7 @@ impl SolveStage for Confidence {
 pub fn confidence_weights(residuals: &[f32], scale: f64) -> Result<(Vec<f32>, f64)> {
     if !(scale > 0.0) || !scale.is_finite() {
         return Err(Error::OutOfRange {
-            setting: "refinement confidence",
+            setting: "refinement confidence".into(),
             value: scale,
             expected: "a finite value > 0".into(),
         });

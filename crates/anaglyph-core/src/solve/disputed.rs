@@ -14,7 +14,7 @@
 //! `tolerance` times the larger of its residual without them and the median residual of
 //! the view's completely measured pixels (the noise floor). On the periodic preset's
 //! reference view this takes PSNR from 34.1 to about 35 dB, with the other presets within
-//! 0.1 dB (README, "Disputed measurements").
+//! 0.1 dB (docs/reconstruction.md, "Disputed measurements").
 //!
 //! In: C, a view's measurements (`pixels × rows`, NaN where not seen), which camera's
 //! measurements are disputed (`pixels × cameras`), each camera's rows, the spectra on all

@@ -11,7 +11,7 @@
 //! and the scene prior replaces that solve with its estimate from the same channels
 //! through the spectra of the view's well-measured pixels. On the periodic preset, where
 //! the cameras of one row match a grating half a period off, this takes the reference
-//! view from 29.8 to 34.0 dB (README, "Inconsistent pixels"). In a view with too few
+//! view from 29.8 to 34.0 dB (docs/reconstruction.md, "Inconsistent pixels"). In a view with too few
 //! complete pixels to learn a prior, they keep the solve from their own channels.
 //!
 //! In: C, a view's measurements (`pixels × rows`, NaN where not seen), the rows of its own

@@ -124,11 +124,11 @@ fn check_at_least(setting: &'static str, value: f64, least: f64) -> Result<()> {
     if value.is_finite() && value >= least {
         Ok(())
     } else {
-        Err(Error::OutOfRange {
+        Err(Error::out_of_range(
             setting,
             value,
-            expected: format!("a finite value >= {least}"),
-        })
+            format!("a finite value >= {least}"),
+        ))
     }
 }
 

@@ -23,7 +23,7 @@ pub(super) struct PointCosts<'a> {
     features: &'a [CompactFeatures],
     neighbours: Vec<NeighbourProducts>,
     /// Per view, every other view with its shift and half-arrays ([`others_of`]).
-    others: Vec<Vec<(usize, (f64, f64), [bool; HALVES])>>,
+    others: Vec<Vec<OtherView>>,
     kernel: DotKernel,
     pub positions: &'a [(usize, usize)],
     pub geometry: &'a ArrayGeometry,
@@ -100,6 +100,10 @@ impl<'a> PointCosts<'a> {
     }
 }
 
+/// Another view seen from a reference: its index, its shift per unit disparity and the
+/// half-arrays it belongs to.
+type OtherView = (usize, (f64, f64), [bool; HALVES]);
+
 /// Half-arrays: views left of, right of, above and below the reference.
 const HALVES: usize = 4;
 /// Fractional row offsets below this are treated as whole rows (one dot product).
@@ -116,7 +120,7 @@ fn others_of(
     positions: &[(usize, usize)],
     reference: usize,
     geometry: &ArrayGeometry,
-) -> Vec<(usize, (f64, f64), [bool; HALVES])> {
+) -> Vec<OtherView> {
     let me = positions[reference];
     (0..positions.len())
         .filter(|&v| v != reference)

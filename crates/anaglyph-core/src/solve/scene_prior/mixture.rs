@@ -251,7 +251,7 @@ impl ScenePrior {
         }
         if !(noise_scale > 0.0) || !noise_scale.is_finite() {
             return Err(Error::OutOfRange {
-                setting: "scene prior noise scale",
+                setting: "scene prior noise scale".into(),
                 value: noise_scale,
                 expected: "a finite value > 0".into(),
             });

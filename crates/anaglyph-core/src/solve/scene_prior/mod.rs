@@ -71,7 +71,7 @@ pub struct ScenePriorSettings {
 
 impl Default for ScenePriorSettings {
     fn default() -> Self {
-        // Measured on the presets at 640×480 (README, "Scene prior"): noise scales of
+        // Measured on the presets at 640×480 (docs/reconstruction.md, "Scene prior"): noise scales of
         // 0.3 and 0.5 gain alike in PSNR, 0.5 keeps SSIM; 3 leans so hard on the mean that
         // it loses 7 dB. 32 clusters beat 16 and 64.
         ScenePriorSettings {
@@ -87,14 +87,14 @@ impl ScenePriorSettings {
     pub fn validate(&self) -> Result<()> {
         if !(self.noise_scale > 0.0) || !self.noise_scale.is_finite() {
             return Err(Error::OutOfRange {
-                setting: "scene prior noise scale",
+                setting: "scene prior noise scale".into(),
                 value: self.noise_scale,
                 expected: "a finite value > 0".into(),
             });
         }
         if self.clusters == 0 {
             return Err(Error::OutOfRange {
-                setting: "scene prior clusters",
+                setting: "scene prior clusters".into(),
                 value: 0.0,
                 expected: "at least 1".into(),
             });

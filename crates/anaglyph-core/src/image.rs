@@ -1,0 +1,81 @@
+//! Images in memory: a width × height grid of pixels of `channels` values each, row-major
+//! with channels interleaved (kornia's `Image`, with the channel count known at run time:
+//! an array mixes RGB and monochrome cameras, and a cube has as many bands as the rig asks).
+//!
+//! In: the values and their layout, checked on construction. Out: per-pixel access.
+
+use crate::{Error, Result};
+
+/// `height × width × channels` values of type `T`: `data[(y * width + x) * channels + c]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image<T> {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub data: Vec<T>,
+}
+
+impl<T> Image<T> {
+    /// An image of the given layout over `data`, whose length must be
+    /// `width × height × channels` (channels ≥ 1).
+    pub fn new(width: usize, height: usize, channels: usize, data: Vec<T>) -> Result<Self> {
+        let expected = width
+            .checked_mul(height)
+            .and_then(|n| n.checked_mul(channels))
+            .filter(|_| channels > 0);
+        if expected != Some(data.len()) {
+            return Err(Error::Shape {
+                op: "image: values against width × height × channels".into(),
+                got: vec![data.len()],
+                expected: vec![width, height, channels],
+            });
+        }
+        Ok(Image {
+            width,
+            height,
+            channels,
+            data,
+        })
+    }
+
+    /// Pixels in the image.
+    pub fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// The values of pixel (x, y).
+    pub fn pixel(&self, x: usize, y: usize) -> &[T] {
+        let start = (y * self.width + x) * self.channels;
+        &self.data[start..start + self.channels]
+    }
+}
+
+impl<T: Clone> Image<T> {
+    /// An image whose every value is `value`.
+    pub fn filled(width: usize, height: usize, channels: usize, value: T) -> Self {
+        Image {
+            width,
+            height,
+            channels,
+            data: vec![value; width * height * channels],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_layout_is_checked_and_pixels_are_interleaved() {
+        let image = Image::new(2, 1, 3, vec![1, 2, 3, 4, 5, 6]).unwrap();
+        assert_eq!(image.pixel(1, 0), &[4, 5, 6]);
+        assert_eq!(image.pixels(), 2);
+        assert!(matches!(
+            Image::new(2, 2, 3, vec![0; 6]),
+            Err(Error::Shape { .. })
+        ));
+        assert!(Image::<u8>::new(2, 2, 0, vec![]).is_err());
+        assert!(Image::<u8>::new(usize::MAX, 2, 1, vec![]).is_err());
+    }
+}
