@@ -19,7 +19,7 @@ use anaglyph_core::io::write_atomically;
 use anaglyph_core::reconstruct::{plot_probe, plot_series, Probe};
 use anaglyph_core::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
 use anaglyph_core::simulate::Simulation;
-use anaglyph_core::spectrum::ResponseCurve;
+use anaglyph_core::spectrum::{ResponseCurve, SpectralShape};
 use anaglyph_core::stereo::{match_pair, GreyImage, MatchSettings, MatchingCost, MatchingNetwork};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -196,7 +196,92 @@ fn print_table(title: &str, result: &TrialResult, centres: &[f64]) {
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let total = Instant::now();
     println!("anaglyph demo: the spectral core end to end (paper sections 2.3, 3.2, 4.1c-d)\n");
+    let selected = select_paper_rig()?;
+    let core = SpectralCore::of(&selected.filters, &args)?;
+    let all = core.recover_all()?;
+    let colorchecker = core.recover_chart()?;
+    let out_of_band = core.compare_out_of_band()?;
+    let solvers = core.compare_solvers()?;
+    let (noise_filters, noise_psnr) = core.select_by_noise(&selected, all.psnr)?;
+    let (presets, simulation) = light_fields(&args, &selected.filters)?;
+    let (width, _) = args.size;
+    let stereo = stereo_section(&simulation, (width / 10).max(8))?;
+    let noise_in_c = noise_in_c_section(&core, args.seed)?;
+    let filters: Vec<String> = selected.filters.iter().map(|s| s.to_string()).collect();
+    let chart_svgs = write_chart_spectra(&args.out, &colorchecker, &core.chart, &core.centres)?;
+    let noise_svg = "noise_in_c.svg";
+    plot_series(
+        &args.out.join(noise_svg),
+        "PSNR against noise in C (Fig. 8a)",
+        ("σ / max C", "PSNR (dB)"),
+        &[("all reflectances".to_string(), noise_in_c.clone())],
+    )?;
+    let solver_rows: Vec<(String, f64, f64, f64)> = solvers
+        .iter()
+        .map(|s| {
+            (
+                s.solver.clone(),
+                s.seconds,
+                s.mean_objective,
+                s.max_difference_to_exact,
+            )
+        })
+        .collect();
+    write_report(
+        &args.out,
+        &ReportInputs {
+            filters: &filters,
+            condition_number: core.cond,
+            size: args.size,
+            bands_nm: &core.centres,
+            colorchecker_band_psnr: &colorchecker.band_psnr,
+            colorchecker_psnr: colorchecker.psnr,
+            presets: &presets,
+            solvers: &solver_rows,
+            noise_in_c: &noise_in_c,
+            chart_svgs: &chart_svgs,
+            noise_svg,
+            seconds: total.elapsed().as_secs_f64(),
+        },
+    )?;
+    println!("\nreport: {}", args.out.join("report.html").display());
+    println!(
+        "\ndemo finished in {}",
+        format_seconds(total.elapsed().as_secs_f64())
+    );
+    if let Some(path) = &args.json {
+        let report = DemoReport {
+            filters,
+            condition_number: core.cond,
+            max_out_of_band_fraction: core.outside,
+            simulated_reference_psnr: presets[0].true_disparity.reference.psnr,
+            simulated_reference_ssim: presets[0].true_disparity.reference.ssim,
+            all,
+            colorchecker,
+            out_of_band,
+            solvers,
+            noise_criterion_filters: noise_filters,
+            noise_criterion_psnr: noise_psnr,
+            stereo_bad2: stereo.iter().map(|(n, b, _)| (n.to_string(), *b)).collect(),
+            light_fields: presets,
+            noise_in_c,
+        };
+        let text = serde_json::to_string_pretty(&report)?;
+        write_atomically(path, |w| w.write_all(text.as_bytes()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
 
+/// The filters section 1 chose, with what chose them.
+struct SelectedRig {
+    filters: Vec<&'static str>,
+    inputs: SelectionInputs,
+    options: SelectionOptions,
+}
+
+/// Section 1: Filter selection by cond(C), as the paper does.
+fn select_paper_rig() -> anyhow::Result<SelectedRig> {
     println!(
         "1. Filter selection: 8 of the {} modelled gels for a Canon EOS 5D Mark II under CIE A",
         builtin::filter_names().len()
@@ -216,183 +301,246 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     };
     let (selection, seconds) = run_selection(&inputs, &options, OutOfBand::Extend)?;
     print_report(&selection, seconds);
-    let filters: Vec<&str> = selection.best[0]
+    let filters = selection.best[0]
         .filters
         .iter()
-        .map(|&f| selection.candidates[f].as_str())
-        .collect();
-    let rig = Rig::from_file(Rig::paper_rig_file(&filters), ".".into())?;
-    let shape = rig.reconstruction_shape()?;
+        .map(|&f| builtin_name(&selection.candidates[f]))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(SelectedRig {
+        filters,
+        inputs,
+        options,
+    })
+}
 
-    let responses = EffectiveResponses::of_rig(&rig)?;
-    let c = SensingMatrix::from_responses(&responses, shape, OutOfBand::Extend)?;
-    let cond = c.condition_number()?;
-    let outside = SensingMatrix::in_band_fraction(&responses, &shape)
+/// The built-in filter of that name, as a `'static` name.
+fn builtin_name(name: &str) -> anyhow::Result<&'static str> {
+    builtin::filter_names()
         .iter()
-        .map(|f| 1.0 - f)
-        .fold(0.0, f64::max);
-    println!(
-        "\n2. Sensing matrix: {} × {} ({} bands + {} out-of-band knots, {}–{} nm), cond(C) = {cond:.3e}",
-        c.rows(),
-        c.cols(),
-        shape.count,
-        c.cols() - shape.count,
-        c.unknowns.start,
-        c.unknowns.end()
-    );
-    println!(
-        "   up to {:.1} % of a channel's signal lies outside {}–{} nm",
-        100.0 * outside,
-        shape.start - 4.0,
-        shape.end() + 4.0
-    );
+        .copied()
+        .find(|&n| n == name)
+        .ok_or_else(|| anyhow::anyhow!("selected filter {name} is not built in"))
+}
 
-    let library = reflectance_library(args.mixtures, args.seed)?;
-    let chart = builtin::reflectances("colorchecker_n_ohta")?;
-    let noise = CameraNoise::default();
-    println!(
-        "\n3. {} reflectances (24 ColorChecker, 99 CIE 2017 TCS, 190 rawtoaces patches, {} mixtures) rendered at 1 nm;\n   noise: {}-bit, {} e⁻ full well, {} e⁻ read noise, white at {:.0} % of full scale; λ = 0.01",
-        library.channel_count(),
-        args.mixtures,
-        noise.bits,
-        noise.full_well_electrons,
-        noise.read_noise_electrons,
-        100.0 * noise.exposure
-    );
-    let settings = TrialSettings {
-        noise: Some(noise),
-        seed: args.seed,
-        options: DemuxOptions::default(),
-    };
-    let start = Instant::now();
-    let all = recover_reflectances(&library, &responses, &c, &settings)?;
-    println!(
-        "   demultiplexed in {} ({} touch s >= 0)",
-        format_seconds(start.elapsed().as_secs_f64()),
-        all.report.bounded_pixels
-    );
-    let centres = shape.wavelengths();
-    print_table("   all reflectances", &all, &centres);
-    let colorchecker = recover_reflectances(&chart, &responses, &c, &settings)?;
-    print_table("   ColorChecker", &colorchecker, &centres);
+/// The selected rig's C and what sections 3 to 6 and 9 measure through it.
+struct SpectralCore {
+    shape: SpectralShape,
+    responses: EffectiveResponses,
+    c: SensingMatrix,
+    cond: f64,
+    /// The largest share of a channel's signal outside the reconstruction range.
+    outside: f64,
+    library: ResponseCurve,
+    /// Random mixtures of the measured sets in `library`.
+    mixtures: usize,
+    chart: ResponseCurve,
+    settings: TrialSettings,
+    centres: Vec<f64>,
+}
 
-    println!("\n4. Out-of-band light (all reflectances; PSNR noise-free / noisy):");
-    let mut out_of_band = Vec::new();
-    for (mode, what) in [
-        (
-            OutOfBand::Extend,
-            "extend: extra knots over the sensor support (default)",
-        ),
-        (OutOfBand::Clamp, "clamp: edge bands absorb the tails"),
-        (
-            OutOfBand::Ignore,
-            "ignore: Eq. 2 literally, light outside 446–638 nm dropped",
-        ),
-    ] {
-        let cm = SensingMatrix::from_responses(&responses, shape, mode)?;
-        let clean = recover_reflectances(
-            &library,
-            &responses,
-            &cm,
-            &TrialSettings {
-                noise: None,
-                ..settings
-            },
-        )?;
-        let noisy = recover_reflectances(&library, &responses, &cm, &settings)?;
-        println!("   {:>6.2} dB / {:>6.2} dB  {what}", clean.psnr, noisy.psnr);
-        out_of_band.push((format!("{mode:?}"), clean.psnr, noisy.psnr));
-    }
-
-    println!("\n5. Solvers on the 24 ColorChecker patches (paper Fig. 6):");
-    let rows = c.rows();
-    let n = c.cols();
-    let chart_measurements = {
-        let trial = recover_reflectances(
-            &chart,
-            &responses,
-            &c,
-            &TrialSettings {
-                noise: None,
-                ..settings
-            },
-        )?;
-        drop(trial);
-        let spectra = anaglyph_core::capture::spectra_on_grid(&chart, &responses)?;
-        anaglyph_core::capture::measure_spectra(&spectra, &responses, &c)
-    };
-    let eq = NormalEquations::new(c.values(), n, (0..rows).collect(), 0.01)?;
-    let mut exact_solution = Vec::new();
-    let mut solvers = Vec::new();
-    for (solver, name) in [
-        (Solver::Exact, "exact (batched + pivoting)"),
-        (Solver::ConjugateGradient, "conjugate gradient"),
-        (Solver::Lsqr, "LSQR"),
-        (Solver::ProjectedGradient, "gradient descent (accelerated)"),
-    ] {
-        let opts = DemuxOptions {
-            solver,
-            tolerance: 1e-10,
-            ..DemuxOptions::default()
-        };
-        let t = Instant::now();
-        let (s, report) = demultiplex(c.values(), rows, &chart_measurements, None, 0..n, &opts)?;
-        let seconds = t.elapsed().as_secs_f64();
-        let objective = (0..24)
-            .map(|i| {
-                eq.objective(
-                    &s[i * n..(i + 1) * n],
-                    &chart_measurements[i * rows..(i + 1) * rows],
-                )
-            })
-            .sum::<f64>()
-            / 24.0;
-        if exact_solution.is_empty() {
-            exact_solution = s.clone();
-        }
-        let diff = s
+impl SpectralCore {
+    /// Section 2: The sensing matrix of the selected rig.
+    fn of(filters: &[&str], args: &DemoArgs) -> anyhow::Result<SpectralCore> {
+        let rig = Rig::from_file(Rig::paper_rig_file(filters), ".".into())?;
+        let shape = rig.reconstruction_shape()?;
+        let responses = EffectiveResponses::of_rig(&rig)?;
+        let c = SensingMatrix::from_responses(&responses, shape, OutOfBand::Extend)?;
+        let cond = c.condition_number()?;
+        let outside = SensingMatrix::in_band_fraction(&responses, &shape)
             .iter()
-            .zip(&exact_solution)
-            .map(|(a, b)| (a - b).abs())
+            .map(|f| 1.0 - f)
             .fold(0.0, f64::max);
         println!(
-            "   {name:<32} {:>10}  mean objective {objective:.6e}  max |s − s_exact| {diff:.1e}  ({} iterations)",
-            format_seconds(seconds),
-            report.iterations
+            "\n2. Sensing matrix: {} × {} ({} bands + {} out-of-band knots, {}–{} nm), cond(C) = {cond:.3e}",
+            c.rows(),
+            c.cols(),
+            shape.count,
+            c.cols() - shape.count,
+            c.unknowns.start,
+            c.unknowns.end()
         );
-        solvers.push(SolverTiming {
-            solver: name.into(),
-            seconds,
-            mean_objective: objective,
-            max_difference_to_exact: diff,
-        });
+        println!(
+            "   up to {:.1} % of a channel's signal lies outside {}–{} nm",
+            100.0 * outside,
+            shape.start - 4.0,
+            shape.end() + 4.0
+        );
+        let noise = CameraNoise::default();
+        Ok(SpectralCore {
+            shape,
+            centres: shape.wavelengths(),
+            c,
+            cond,
+            outside,
+            library: reflectance_library(args.mixtures, args.seed)?,
+            mixtures: args.mixtures,
+            chart: builtin::reflectances("colorchecker_n_ohta")?,
+            settings: TrialSettings {
+                noise: Some(noise),
+                seed: args.seed,
+                options: DemuxOptions::default(),
+            },
+            responses,
+        })
     }
 
-    println!("\n6. Choosing the filters by expected error under noise instead of cond(C):");
-    let noise_options = SelectionOptions {
-        criterion: SelectionCriterion::Noise,
-        keep: 1,
-        ..options
-    };
-    let (by_noise, seconds) = run_selection(&inputs, &noise_options, OutOfBand::Extend)?;
-    let noise_filters: Vec<&str> = by_noise.best[0]
-        .filters
-        .iter()
-        .map(|&f| by_noise.candidates[f].as_str())
-        .collect();
-    let noise_rig = Rig::from_file(Rig::paper_rig_file(&noise_filters), ".".into())?;
-    let noise_responses = EffectiveResponses::of_rig(&noise_rig)?;
-    let noise_c = SensingMatrix::from_responses(&noise_responses, shape, OutOfBand::Extend)?;
-    let noise_trial = recover_reflectances(&library, &noise_responses, &noise_c, &settings)?;
-    println!(
-        "   searched in {}: {}\n   cond(C) = {:.3e} (vs {cond:.3e}), all reflectances {:.2} dB (vs {:.2} dB with the cond(C) choice)",
-        format_seconds(seconds),
-        noise_filters.join(" "),
-        noise_c.condition_number()?,
-        noise_trial.psnr,
-        all.psnr
-    );
+    /// Section 3: Every reflectance rendered at 1 nm with noise, demultiplexed.
+    fn recover_all(&self) -> anyhow::Result<TrialResult> {
+        let noise = CameraNoise::default();
+        println!(
+            "\n3. {} reflectances (24 ColorChecker, 99 CIE 2017 TCS, 190 rawtoaces patches, {} mixtures) rendered at 1 nm;\n   noise: {}-bit, {} e⁻ full well, {} e⁻ read noise, white at {:.0} % of full scale; λ = 0.01",
+            self.library.channel_count(),
+            self.mixtures,
+            noise.bits,
+            noise.full_well_electrons,
+            noise.read_noise_electrons,
+            100.0 * noise.exposure
+        );
+        let start = Instant::now();
+        let all = recover_reflectances(&self.library, &self.responses, &self.c, &self.settings)?;
+        println!(
+            "   demultiplexed in {} ({} touch s >= 0)",
+            format_seconds(start.elapsed().as_secs_f64()),
+            all.report.bounded_pixels
+        );
+        print_table("   all reflectances", &all, &self.centres);
+        Ok(all)
+    }
 
+    /// Section 3, continued: the ColorChecker alone.
+    fn recover_chart(&self) -> anyhow::Result<TrialResult> {
+        let chart = recover_reflectances(&self.chart, &self.responses, &self.c, &self.settings)?;
+        print_table("   ColorChecker", &chart, &self.centres);
+        Ok(chart)
+    }
+
+    /// Section 4: The three ways of treating out-of-band light, noise-free and noisy.
+    fn compare_out_of_band(&self) -> anyhow::Result<Vec<(String, f64, f64)>> {
+        println!("\n4. Out-of-band light (all reflectances; PSNR noise-free / noisy):");
+        let mut out_of_band = Vec::new();
+        for (mode, what) in [
+            (
+                OutOfBand::Extend,
+                "extend: extra knots over the sensor support (default)",
+            ),
+            (OutOfBand::Clamp, "clamp: edge bands absorb the tails"),
+            (
+                OutOfBand::Ignore,
+                "ignore: Eq. 2 literally, light outside 446–638 nm dropped",
+            ),
+        ] {
+            let cm = SensingMatrix::from_responses(&self.responses, self.shape, mode)?;
+            let noise_free = TrialSettings {
+                noise: None,
+                ..self.settings
+            };
+            let clean = recover_reflectances(&self.library, &self.responses, &cm, &noise_free)?;
+            let noisy = recover_reflectances(&self.library, &self.responses, &cm, &self.settings)?;
+            println!("   {:>6.2} dB / {:>6.2} dB  {what}", clean.psnr, noisy.psnr);
+            out_of_band.push((format!("{mode:?}"), clean.psnr, noisy.psnr));
+        }
+        Ok(out_of_band)
+    }
+
+    /// Section 5: The four solvers on the ColorChecker's noise-free measurements (Fig. 6).
+    fn compare_solvers(&self) -> anyhow::Result<Vec<SolverTiming>> {
+        println!("\n5. Solvers on the 24 ColorChecker patches (paper Fig. 6):");
+        let c = &self.c;
+        let (rows, n) = (c.rows(), c.cols());
+        let spectra = anaglyph_core::capture::spectra_on_grid(&self.chart, &self.responses)?;
+        let measurements = anaglyph_core::capture::measure_spectra(&spectra, &self.responses, c);
+        let eq = NormalEquations::new(c.values(), n, (0..rows).collect(), 0.01)?;
+        let mut exact_solution = Vec::new();
+        let mut solvers = Vec::new();
+        for (solver, name) in [
+            (Solver::Exact, "exact (batched + pivoting)"),
+            (Solver::ConjugateGradient, "conjugate gradient"),
+            (Solver::Lsqr, "LSQR"),
+            (Solver::ProjectedGradient, "gradient descent (accelerated)"),
+        ] {
+            let opts = DemuxOptions {
+                solver,
+                tolerance: 1e-10,
+                ..DemuxOptions::default()
+            };
+            let t = Instant::now();
+            let (s, report) = demultiplex(c.values(), rows, &measurements, None, 0..n, &opts)?;
+            let seconds = t.elapsed().as_secs_f64();
+            let objective = (0..24)
+                .map(|i| {
+                    eq.objective(
+                        &s[i * n..(i + 1) * n],
+                        &measurements[i * rows..(i + 1) * rows],
+                    )
+                })
+                .sum::<f64>()
+                / 24.0;
+            if exact_solution.is_empty() {
+                exact_solution = s.clone();
+            }
+            let diff = s
+                .iter()
+                .zip(&exact_solution)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            println!(
+                "   {name:<32} {:>10}  mean objective {objective:.6e}  max |s − s_exact| {diff:.1e}  ({} iterations)",
+                format_seconds(seconds),
+                report.iterations
+            );
+            solvers.push(SolverTiming {
+                solver: name.into(),
+                seconds,
+                mean_objective: objective,
+                max_difference_to_exact: diff,
+            });
+        }
+        Ok(solvers)
+    }
+
+    /// Section 6: Filters chosen by the expected error under noise: their names and PSNR.
+    fn select_by_noise(
+        &self,
+        selected: &SelectedRig,
+        cond_psnr: f64,
+    ) -> anyhow::Result<(Vec<String>, f64)> {
+        println!("\n6. Choosing the filters by expected error under noise instead of cond(C):");
+        let noise_options = SelectionOptions {
+            criterion: SelectionCriterion::Noise,
+            keep: 1,
+            ..selected.options
+        };
+        let (by_noise, seconds) =
+            run_selection(&selected.inputs, &noise_options, OutOfBand::Extend)?;
+        let filters: Vec<String> = by_noise.best[0]
+            .filters
+            .iter()
+            .map(|&f| by_noise.candidates[f].clone())
+            .collect();
+        let names: Vec<&str> = filters.iter().map(String::as_str).collect();
+        let rig = Rig::from_file(Rig::paper_rig_file(&names), ".".into())?;
+        let responses = EffectiveResponses::of_rig(&rig)?;
+        let c = SensingMatrix::from_responses(&responses, self.shape, OutOfBand::Extend)?;
+        let trial = recover_reflectances(&self.library, &responses, &c, &self.settings)?;
+        println!(
+            "   searched in {}: {}\n   cond(C) = {:.3e} (vs {:.3e}), all reflectances {:.2} dB (vs {:.2} dB with the cond(C) choice)",
+            format_seconds(seconds),
+            names.join(" "),
+            c.condition_number()?,
+            self.cond,
+            trial.psnr,
+            cond_psnr
+        );
+        Ok((filters, trial.psnr))
+    }
+}
+
+/// Section 7: The preset scenes through the rig, reconstructed from the captures and from the
+/// true disparities.
+fn light_fields(
+    args: &DemoArgs,
+    filters: &[&str],
+) -> anyhow::Result<(Vec<PresetResult>, Simulation)> {
     let (width, height) = args.size;
     println!(
         "\n7. Light fields: the {} preset scenes through this rig at {width}×{height}, every view reconstructed",
@@ -404,7 +552,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     println!("   by a guided filter on its own capture");
     std::fs::create_dir_all(&args.out)?;
-    let (presets, simulation) = run_presets(&args.out, &filters, args.size, args.seed)?;
+    let (presets, simulation) = run_presets(&args.out, filters, args.size, args.seed)?;
     println!("   (agreement: the lowest over the views of the fraction of disparities a neighbouring view's map confirms)");
     println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   agreement   time");
     for p in &presets {
@@ -422,93 +570,37 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             format_seconds(p.estimated.seconds)
         );
     }
-    let sim_psnr = presets[0].true_disparity.reference.psnr;
-    let sim_ssim = presets[0].true_disparity.reference.ssim;
+    Ok((presets, simulation))
+}
 
+/// Section 8: Cross-spectral stereo on the rig's horizontal neighbours.
+fn stereo_section(
+    simulation: &Simulation,
+    max_disp: usize,
+) -> anyhow::Result<Vec<(&'static str, f64, f64)>> {
     println!("\n8. Cross-spectral stereo on the same captures: the 6 horizontally neighbouring pairs, 32 disparities");
     println!("   (bad-2.0: % of pixels seen by both cameras off by more than 2 px; default chain of `anaglyph match`)");
-    let stereo = stereo_on_neighbours(&simulation, (width / 10).max(8))?;
+    let stereo = stereo_on_neighbours(simulation, max_disp)?;
     for (name, bad2, seconds) in &stereo {
         println!(
             "   {name:<7} bad-2 {bad2:>5.1} %   ({} per pair)",
             format_seconds(*seconds)
         );
     }
+    Ok(stereo)
+}
 
+/// Section 9: Robustness to noise in C (Fig. 8a).
+fn noise_in_c_section(core: &SpectralCore, seed: u64) -> anyhow::Result<Vec<(f64, f64)>> {
     println!("\n9. Robustness to errors in C (paper Fig. 8a): Gaussian noise of σ × max(C) added to the C used");
     println!(
         "   for reconstruction (measurements from the true curves, noise-free; all reflectances)"
     );
-    let noise_in_c = psnr_against_noise_in_c(&library, &responses, &c, args.seed)?;
+    let noise_in_c = psnr_against_noise_in_c(&core.library, &core.responses, &core.c, seed)?;
     for (sigma, psnr) in &noise_in_c {
         println!("   σ = {sigma:<6} PSNR {psnr:>6.2} dB");
     }
-
-    let chart_svgs = write_chart_spectra(&args.out, &colorchecker, &chart, &centres)?;
-    let noise_svg = "noise_in_c.svg";
-    plot_series(
-        &args.out.join(noise_svg),
-        "PSNR against noise in C (Fig. 8a)",
-        ("σ / max C", "PSNR (dB)"),
-        &[("all reflectances".to_string(), noise_in_c.clone())],
-    )?;
-    let solver_rows: Vec<(String, f64, f64, f64)> = solvers
-        .iter()
-        .map(|s| {
-            (
-                s.solver.clone(),
-                s.seconds,
-                s.mean_objective,
-                s.max_difference_to_exact,
-            )
-        })
-        .collect();
-    let filter_names: Vec<String> = filters.iter().map(|s| s.to_string()).collect();
-    write_report(
-        &args.out,
-        &ReportInputs {
-            filters: &filter_names,
-            condition_number: cond,
-            size: args.size,
-            bands_nm: &centres,
-            colorchecker_band_psnr: &colorchecker.band_psnr,
-            colorchecker_psnr: colorchecker.psnr,
-            presets: &presets,
-            solvers: &solver_rows,
-            noise_in_c: &noise_in_c,
-            chart_svgs: &chart_svgs,
-            noise_svg,
-            seconds: total.elapsed().as_secs_f64(),
-        },
-    )?;
-    println!("\nreport: {}", args.out.join("report.html").display());
-
-    println!(
-        "\ndemo finished in {}",
-        format_seconds(total.elapsed().as_secs_f64())
-    );
-    if let Some(path) = &args.json {
-        let report = DemoReport {
-            filters: filters.iter().map(|s| s.to_string()).collect(),
-            condition_number: cond,
-            max_out_of_band_fraction: outside,
-            all,
-            colorchecker,
-            out_of_band,
-            solvers,
-            noise_criterion_filters: noise_filters.iter().map(|s| s.to_string()).collect(),
-            noise_criterion_psnr: noise_trial.psnr,
-            simulated_reference_psnr: sim_psnr,
-            simulated_reference_ssim: sim_ssim,
-            stereo_bad2: stereo.iter().map(|(n, b, _)| (n.to_string(), *b)).collect(),
-            light_fields: presets.clone(),
-            noise_in_c: noise_in_c.clone(),
-        };
-        let text = serde_json::to_string_pretty(&report)?;
-        write_atomically(path, |w| w.write_all(text.as_bytes()))?;
-        println!("wrote {}", path.display());
-    }
-    Ok(())
+    Ok(noise_in_c)
 }
 
 /// Relative σ values of the noise added to C (Fig. 8a).

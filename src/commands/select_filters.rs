@@ -66,7 +66,7 @@ pub fn run_selection(
             illuminant: inputs.illuminant.as_ref(),
             sensor_interpolation: Interpolation::CubicSpline,
             reported: SpectralShape::PAPER_BANDS,
-            out_of_band: out_of_band,
+            out_of_band,
         },
         &prior,
         options,

@@ -457,6 +457,22 @@ fn solve_chunk<C: Sample, O: Sample>(
     options: &DemuxOptions,
     buffers: &mut ChunkBuffers<C>,
 ) -> Result<DemuxReport> {
+    if options.solver == Solver::Exact {
+        solve_chunk_exact(eq, p, out, output, buffers)
+    } else {
+        solve_chunk_iterative(eq, p, out, output, options, buffers)
+    }
+}
+
+/// [`solve_chunk`] by the exact path: the unconstrained solutions of the whole chunk in one
+/// product, then block principal pivoting for the pixels with negative entries.
+fn solve_chunk_exact<C: Sample, O: Sample>(
+    eq: &NormalEquations,
+    p: &[C],
+    out: &mut [O],
+    output: &Range<usize>,
+    buffers: &mut ChunkBuffers<C>,
+) -> Result<DemuxReport> {
     let n = eq.n;
     let m = eq.kept_rows.len();
     let pixels = p.len() / m;
@@ -469,49 +485,72 @@ fn solve_chunk<C: Sample, O: Sample>(
         scratch,
         s_hat,
         hat64,
-        p64,
+        ..
     } = buffers;
-    if options.solver == Solver::Exact {
-        // Unconstrained solutions of the whole chunk in one product: Ŝ = P Aᵀ.
-        C::batched_product(eq, p, pixels, s_hat);
-        for px in 0..pixels {
-            let hat = &s_hat[px * n..(px + 1) * n];
-            let dst = &mut out[px * out_n..(px + 1) * out_n];
-            if hat.iter().all(|&v| v.to_f64() >= 0.0) {
-                for (d, &v) in dst.iter_mut().zip(&hat[output.clone()]) {
-                    *d = O::from_f64(v.to_f64());
-                }
-                continue;
+    // Unconstrained solutions of the whole chunk in one product: Ŝ = P Aᵀ.
+    C::batched_product(eq, p, pixels, s_hat);
+    for px in 0..pixels {
+        let hat = &s_hat[px * n..(px + 1) * n];
+        let dst = &mut out[px * out_n..(px + 1) * out_n];
+        if hat.iter().all(|&v| v.to_f64() >= 0.0) {
+            for (d, &v) in dst.iter_mut().zip(&hat[output.clone()]) {
+                *d = O::from_f64(v.to_f64());
             }
-            report.bounded_pixels += 1;
-            for (h, &v) in hat64.iter_mut().zip(hat) {
-                *h = v.to_f64();
-            }
-            let hat = &hat64[..];
-            let Scratch {
-                free,
-                s,
-                y,
-                b,
-                dense,
-                ..
-            } = &mut *scratch;
-            for i in 0..n {
-                b[i] = eq.h[i * n..(i + 1) * n]
-                    .iter()
-                    .zip(hat)
-                    .map(|(h, v)| h * v)
-                    .sum();
-                free[i] = hat[i] > 0.0;
-            }
-            let (ts, ty) = tolerances(eq, hat, b, EXACT_TOLERANCE);
-            report.iterations += block_principal_pivoting(free, s, y, ts, ty, |f, s, y| {
-                subproblem_schur(eq, hat, b, f, s, y, dense)
-            })? as u64;
-            write_spectrum(dst, &s[output.clone()]);
+            continue;
         }
-        return Ok(report);
+        report.bounded_pixels += 1;
+        for (h, &v) in hat64.iter_mut().zip(hat) {
+            *h = v.to_f64();
+        }
+        let hat = &hat64[..];
+        let Scratch {
+            free,
+            s,
+            y,
+            b,
+            dense,
+            ..
+        } = &mut *scratch;
+        for i in 0..n {
+            b[i] = eq.h[i * n..(i + 1) * n]
+                .iter()
+                .zip(hat)
+                .map(|(h, v)| h * v)
+                .sum();
+            free[i] = hat[i] > 0.0;
+        }
+        let (ts, ty) = tolerances(eq, hat, b, EXACT_TOLERANCE);
+        report.iterations += block_principal_pivoting(free, s, y, ts, ty, |f, s, y| {
+            subproblem_schur(eq, hat, b, f, s, y, dense)
+        })? as u64;
+        write_spectrum(dst, &s[output.clone()]);
     }
+    Ok(report)
+}
+
+/// [`solve_chunk`] by an iterative solver (or the dense reference), pixel by pixel.
+fn solve_chunk_iterative<C: Sample, O: Sample>(
+    eq: &NormalEquations,
+    p: &[C],
+    out: &mut [O],
+    output: &Range<usize>,
+    options: &DemuxOptions,
+    buffers: &mut ChunkBuffers<C>,
+) -> Result<DemuxReport> {
+    let n = eq.n;
+    let m = eq.kept_rows.len();
+    let pixels = p.len() / m;
+    let out_n = output.len();
+    let mut report = DemuxReport {
+        pixels,
+        ..Default::default()
+    };
+    let ChunkBuffers {
+        scratch,
+        hat64,
+        p64,
+        ..
+    } = buffers;
     let lipschitz = if options.solver == Solver::ProjectedGradient {
         eq.largest_eigenvalue()
     } else {

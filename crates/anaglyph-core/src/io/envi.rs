@@ -461,7 +461,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("y.hdr");
         let base = "ENVI\nsamples = 2\nlines = 2\nbands = 1\n";
-        let cases: [(String, fn(&Error) -> bool, &str); 7] = [
+        // (header, the error variant expected, a phrase of its message)
+        type Case = (String, fn(&Error) -> bool, &'static str);
+        let cases: [Case; 7] = [
             (
                 "NOT ENVI\n".into(),
                 |e| matches!(e, Error::Parse { .. }),

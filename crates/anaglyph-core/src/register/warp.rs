@@ -116,19 +116,12 @@ pub struct Gathered {
     pub disputed: Vec<bool>,
 }
 
-/// The measurements of view `reference` from every camera; `disparities[v]` is view v's
-/// map.
-pub fn gather_measurements(
-    reference: usize,
+/// Checks that every view and map has the reference's size.
+fn check_sizes(
     views: &[NormalisedView],
     disparities: &[Vec<f32>],
-    geometry: &ArrayGeometry,
-    admission: Admission,
-    kernel: WarpKernel,
-) -> Result<Gathered> {
-    let Some(me) = views.get(reference) else {
-        return Err(Error::invalid("warping", format!("no view {reference}")));
-    };
+    me: &NormalisedView,
+) -> Result<()> {
     let (w, h) = (me.width, me.height);
     if disparities.len() != views.len() {
         return Err(Error::Shape {
@@ -146,23 +139,88 @@ pub fn gather_measurements(
             });
         }
     }
+    Ok(())
+}
+
+/// What gathering one reference pixel needs: every camera as a source, where its rows
+/// start, the reference's own map and its textureless pixels.
+struct PixelGather<'a> {
+    reference: usize,
+    sources: &'a [Source<'a>],
+    first_rows: Vec<usize>,
+    own: &'a [f32],
+    textureless: Vec<bool>,
+}
+
+impl PixelGather<'_> {
+    /// Gathers pixel (x, y) of the reference from every camera into `out` (its rows of C),
+    /// marking disputed measurements in `disputed_row` and counting into `seen` (per
+    /// camera measured, per camera disputed, then all measured).
+    fn pixel(
+        &self,
+        (x, y): (usize, usize),
+        out: &mut [f32],
+        disputed_row: &mut [bool],
+        seen: &mut [usize],
+    ) {
+        let cameras = self.sources.len();
+        let i = y * self.sources[self.reference].view.width + x;
+        out.fill(f32::NAN);
+        let d = self.own[i];
+        let mut all = true;
+        for (v, source) in self.sources.iter().enumerate() {
+            let ch = source.view.channels;
+            let dst = &mut out[self.first_rows[v]..][..ch];
+            if v == self.reference {
+                dst.copy_from_slice(&source.view.data[i * ch..][..ch]);
+                let ok = dst.iter().all(|m| m.is_finite());
+                seen[v] += usize::from(ok);
+                all &= ok;
+                continue;
+            }
+            let admitted = if d.is_finite() {
+                warp_one(source, (x, y), d, self.textureless[i], dst)
+            } else {
+                Admitted::No
+            };
+            if admitted == Admitted::No {
+                dst.fill(f32::NAN);
+            }
+            if admitted == Admitted::Disputed {
+                disputed_row[x * cameras + v] = true;
+                seen[cameras + v] += 1;
+            }
+            let ok = admitted != Admitted::No;
+            seen[v] += usize::from(ok);
+            all &= ok;
+        }
+        seen[2 * cameras] += usize::from(all);
+    }
+}
+
+/// The measurements of view `reference` from every camera; `disparities[v]` is view v's
+/// map.
+pub fn gather_measurements(
+    reference: usize,
+    views: &[NormalisedView],
+    disparities: &[Vec<f32>],
+    geometry: &ArrayGeometry,
+    admission: Admission,
+    kernel: WarpKernel,
+) -> Result<Gathered> {
+    let Some(me) = views.get(reference) else {
+        return Err(Error::invalid("warping", format!("no view {reference}")));
+    };
+    check_sizes(views, disparities, me)?;
+    let (w, h) = (me.width, me.height);
     let rows: usize = views.iter().map(|v| v.channels).sum();
-    let first_rows: Vec<usize> = views
-        .iter()
-        .scan(0, |acc, v| {
-            let first = *acc;
-            *acc += v.channels;
-            Some(first)
-        })
-        .collect();
+    let cameras = views.len();
+    let depth_order = admission == Admission::DepthOrder;
     let shifts: Vec<(f64, f64)> = views
         .iter()
         .map(|v| geometry.shift((me.row, me.col), (v.row, v.col)))
         .collect();
     let own = &disparities[reference];
-    let textureless = textureless_pixels(me);
-    let cameras = views.len();
-    let depth_order = admission == Admission::DepthOrder;
     let nearest: Vec<Vec<f32>> = shifts
         .iter()
         .enumerate()
@@ -175,6 +233,31 @@ pub fn gather_measurements(
         })
         .collect();
     let kernel = (kernel == WarpKernel::Lanczos3).then(KernelTable::new);
+    let sources: Vec<Source> = views
+        .iter()
+        .enumerate()
+        .map(|(v, view)| Source {
+            view,
+            disparity: &disparities[v],
+            shift: shifts[v],
+            nearest: &nearest[v],
+            kernel: kernel.as_ref(),
+        })
+        .collect();
+    let gather = PixelGather {
+        reference,
+        sources: &sources,
+        first_rows: views
+            .iter()
+            .scan(0, |acc, v| {
+                let first = *acc;
+                *acc += v.channels;
+                Some(first)
+            })
+            .collect(),
+        own,
+        textureless: textureless_pixels(me),
+    };
     let mut measurements = crate::io::zeroed_large::<f32>(w * h * rows);
     let mut disputed = vec![false; if depth_order { w * h * cameras } else { 0 }];
     let mut disputed_rows: Vec<&mut [bool]> = if depth_order {
@@ -190,45 +273,8 @@ pub fn gather_measurements(
             // Per camera: measured, disputed; then the pixels every camera measured.
             let mut seen = vec![0usize; 2 * cameras + 1];
             for x in 0..w {
-                let i = y * w + x;
                 let out = &mut out_row[x * rows..][..rows];
-                out.fill(f32::NAN);
-                let d = own[i];
-                let mut all = true;
-                for (v, view) in views.iter().enumerate() {
-                    let ch = view.channels;
-                    let dst = &mut out[first_rows[v]..][..ch];
-                    if v == reference {
-                        dst.copy_from_slice(&view.data[i * ch..][..ch]);
-                        let ok = dst.iter().all(|m| m.is_finite());
-                        seen[v] += usize::from(ok);
-                        all &= ok;
-                        continue;
-                    }
-                    let source = Source {
-                        view,
-                        disparity: &disparities[v],
-                        shift: shifts[v],
-                        nearest: &nearest[v],
-                        kernel: kernel.as_ref(),
-                    };
-                    let admitted = if d.is_finite() {
-                        warp_one(&source, (x, y), d, textureless[i], dst)
-                    } else {
-                        Admitted::No
-                    };
-                    if admitted == Admitted::No {
-                        dst.fill(f32::NAN);
-                    }
-                    if admitted == Admitted::Disputed {
-                        disputed_row[x * cameras + v] = true;
-                        seen[cameras + v] += 1;
-                    }
-                    let ok = admitted != Admitted::No;
-                    seen[v] += usize::from(ok);
-                    all &= ok;
-                }
-                seen[2 * cameras] += usize::from(all);
+                gather.pixel((x, y), out, disputed_row, &mut seen);
             }
             seen
         })

@@ -332,6 +332,139 @@ fn material(spec: &MaterialSpec, resolver: &mut Resolver, ctx: &str) -> Result<M
     })
 }
 
+/// One object of a scene file: its shape (exactly one of rectangle, sphere, box or chart),
+/// checked to lie in front of the cameras, and its material.
+fn resolve_object(
+    spec: &ObjectSpec,
+    resolver: &mut Resolver<'_>,
+    ctx: &str,
+) -> Result<SceneObject> {
+    let shapes = [
+        spec.rectangle.is_some(),
+        spec.sphere.is_some(),
+        spec.cuboid.is_some(),
+        spec.chart.is_some(),
+    ];
+    if shapes.iter().filter(|&&s| s).count() != 1 {
+        return Err(Error::invalid(
+            ctx,
+            "needs exactly one of rectangle, sphere, box or chart",
+        ));
+    }
+    let material = object_material(spec, resolver, ctx)?;
+    let (shape, nearest_z) = object_shape(spec, ctx)?;
+    if !(nearest_z >= MIN_DEPTH_MM) {
+        return Err(Error::invalid(
+            ctx,
+            format!("reaches z = {nearest_z:.1} mm: objects must lie at least {MIN_DEPTH_MM} mm in front of the cameras (z > 0 is forward)"),
+        ));
+    }
+    Ok(SceneObject { shape, material })
+}
+
+/// An object's material: its own, or a chart's measured ColorChecker patches.
+fn object_material(spec: &ObjectSpec, resolver: &mut Resolver<'_>, ctx: &str) -> Result<Material> {
+    match (&spec.material, &spec.chart) {
+        (Some(m), None) => material(m, resolver, ctx),
+        (None, None) => Err(Error::invalid(ctx, "has no material")),
+        (Some(_), Some(_)) => Err(Error::invalid(
+            ctx,
+            "a chart has its own measured patches; remove its material",
+        )),
+        (None, Some(chart_spec)) => {
+            let chart = builtin::reflectances("colorchecker_n_ohta")?;
+            let at = UPSAMPLING_SHAPE.wavelengths();
+            let patches = (0..24)
+                .map(|c| chart.sample(c, &at, Interpolation::Linear))
+                .collect::<Result<Vec<_>>>()?;
+            // The frame is the chart's own black.
+            let frame = patches[23].clone();
+            let width_mm = finite_positive("width_mm", chart_spec.width_mm.unwrap_or(280.0), ctx)?;
+            Ok(Material::Chart {
+                patches: Arc::new(patches),
+                frame: Arc::new(frame),
+                width_mm,
+            })
+        }
+    }
+}
+
+/// An object's shape and the smallest depth it reaches (mm).
+fn object_shape(spec: &ObjectSpec, ctx: &str) -> Result<(Shape, f64)> {
+    if let Some(s) = &spec.rectangle {
+        let size = s.size_mm.as_deref().unwrap_or_default();
+        if size.len() != 2 {
+            return Err(Error::invalid(
+                ctx,
+                format!("rectangle size_mm {size:?} (expected [width, height])"),
+            ));
+        }
+        let (w, h) = (
+            finite_positive("width", size[0], ctx)?,
+            finite_positive("height", size[1], ctx)?,
+        );
+        let angles = finite_angles(s.rotation_deg, ctx)?;
+        let shape = Shape::rectangle(to_vec3(s.centre_mm, ctx)?, w, h, angles);
+        let z = corners_min_z(&shape);
+        return Ok((shape, z));
+    }
+    if let Some(s) = &spec.chart {
+        let w = finite_positive("width_mm", s.width_mm.unwrap_or(280.0), ctx)?;
+        let angles = finite_angles(s.rotation_deg, ctx)?;
+        let shape = Shape::rectangle(to_vec3(s.centre_mm, ctx)?, w, w * 4.0 / 6.0, angles);
+        let z = corners_min_z(&shape);
+        return Ok((shape, z));
+    }
+    if let Some(s) = &spec.sphere {
+        let r = finite_positive("radius_mm", s.radius_mm.unwrap_or(0.0), ctx)?;
+        let c = to_vec3(s.centre_mm, ctx)?;
+        return Ok((
+            Shape::Sphere {
+                centre: c,
+                radius: r,
+            },
+            c.z - r,
+        ));
+    }
+    let s = spec
+        .cuboid
+        .as_ref()
+        .ok_or_else(|| Error::invalid(ctx, "missing shape"))?;
+    let size = s.size_mm.as_deref().unwrap_or_default();
+    if size.len() != 3 {
+        return Err(Error::invalid(
+            ctx,
+            format!("box size_mm {size:?} (expected [width, height, depth])"),
+        ));
+    }
+    let half = Vec3::new(
+        0.5 * finite_positive("width", size[0], ctx)?,
+        0.5 * finite_positive("height", size[1], ctx)?,
+        0.5 * finite_positive("depth", size[2], ctx)?,
+    );
+    let c = to_vec3(s.centre_mm, ctx)?;
+    let rotation = super::rotation(finite_angles(s.rotation_deg, ctx)?);
+    Ok((
+        Shape::Cuboid {
+            centre: c,
+            rotation,
+            half,
+        },
+        c.z - half.length(),
+    ))
+}
+
+/// Rotation angles (degrees) that are all finite: a NaN would silently empty the scene.
+fn finite_angles(angles: [f64; 3], ctx: &str) -> Result<[f64; 3]> {
+    match angles.iter().find(|a| !a.is_finite()) {
+        None => Ok(angles),
+        Some(&value) => Err(Error::NonFinite {
+            what: format!("{ctx}: rotation_deg {angles:?}"),
+            value,
+        }),
+    }
+}
+
 impl Scene {
     /// Resolves and validates a scene file; relative texture paths are taken from `base`.
     pub fn resolve(file: SceneFile, base: &Path) -> Result<Self> {
@@ -348,121 +481,15 @@ impl Scene {
             base,
             textures: HashMap::new(),
         };
-        let mut objects = Vec::with_capacity(file.objects.len());
-        for (i, spec) in file.objects.iter().enumerate() {
-            let ctx = format!("scene '{}' object {}", file.name, i + 1);
-            let shapes = [&spec.rectangle, &spec.sphere, &spec.cuboid, &spec.chart];
-            if shapes.iter().filter(|s| s.is_some()).count() != 1 {
-                return Err(Error::invalid(
-                    ctx,
-                    "needs exactly one of rectangle, sphere, box or chart",
-                ));
-            }
-            let needs_material = spec.chart.is_none();
-            let material = match (&spec.material, needs_material) {
-                (Some(m), true) => material(m, &mut resolver, &ctx)?,
-                (None, true) => return Err(Error::invalid(ctx, "has no material")),
-                (Some(_), false) => {
-                    return Err(Error::invalid(
-                        ctx,
-                        "a chart has its own measured patches; remove its material",
-                    ))
-                }
-                (None, false) => {
-                    let chart = builtin::reflectances("colorchecker_n_ohta")?;
-                    let at = UPSAMPLING_SHAPE.wavelengths();
-                    let patches = (0..24)
-                        .map(|c| chart.sample(c, &at, Interpolation::Linear))
-                        .collect::<Result<Vec<_>>>()?;
-                    // The frame is the chart's own black.
-                    let frame = patches[23].clone();
-                    let width_mm = finite_positive(
-                        "width_mm",
-                        spec.chart
-                            .as_ref()
-                            .and_then(|c| c.width_mm)
-                            .unwrap_or(280.0),
-                        &ctx,
-                    )?;
-                    Material::Chart {
-                        patches: Arc::new(patches),
-                        frame: Arc::new(frame),
-                        width_mm,
-                    }
-                }
-            };
-            let (shape, nearest_z) = if let Some(s) = &spec.rectangle {
-                let size = s.size_mm.as_deref().unwrap_or_default();
-                if size.len() != 2 {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!("rectangle size_mm {size:?} (expected [width, height])"),
-                    ));
-                }
-                let (w, h) = (
-                    finite_positive("width", size[0], &ctx)?,
-                    finite_positive("height", size[1], &ctx)?,
-                );
-                let shape = Shape::rectangle(to_vec3(s.centre_mm, &ctx)?, w, h, s.rotation_deg);
-                let z = corners_min_z(&shape);
-                (shape, z)
-            } else if let Some(s) = &spec.chart {
-                let w = finite_positive("width_mm", s.width_mm.unwrap_or(280.0), &ctx)?;
-                let shape = Shape::rectangle(
-                    to_vec3(s.centre_mm, &ctx)?,
-                    w,
-                    w * 4.0 / 6.0,
-                    s.rotation_deg,
-                );
-                let z = corners_min_z(&shape);
-                (shape, z)
-            } else if let Some(s) = &spec.sphere {
-                let r = finite_positive("radius_mm", s.radius_mm.unwrap_or(0.0), &ctx)?;
-                let c = to_vec3(s.centre_mm, &ctx)?;
-                (
-                    Shape::Sphere {
-                        centre: c,
-                        radius: r,
-                    },
-                    c.z - r,
-                )
-            } else {
-                let s = spec
-                    .cuboid
-                    .as_ref()
-                    .ok_or_else(|| Error::invalid(ctx.clone(), "missing shape"))?;
-                let size = s.size_mm.as_deref().unwrap_or_default();
-                if size.len() != 3 {
-                    return Err(Error::invalid(
-                        ctx,
-                        format!("box size_mm {size:?} (expected [width, height, depth])"),
-                    ));
-                }
-                let half = Vec3::new(
-                    0.5 * finite_positive("width", size[0], &ctx)?,
-                    0.5 * finite_positive("height", size[1], &ctx)?,
-                    0.5 * finite_positive("depth", size[2], &ctx)?,
-                );
-                let c = to_vec3(s.centre_mm, &ctx)?;
-                let rotation = super::rotation(s.rotation_deg);
-                let reach = half.length();
-                (
-                    Shape::Cuboid {
-                        centre: c,
-                        rotation,
-                        half,
-                    },
-                    c.z - reach,
-                )
-            };
-            if !(nearest_z >= MIN_DEPTH_MM) {
-                return Err(Error::invalid(
-                    ctx,
-                    format!("reaches z = {nearest_z:.1} mm: objects must lie at least {MIN_DEPTH_MM} mm in front of the cameras (z > 0 is forward)"),
-                ));
-            }
-            objects.push(SceneObject { shape, material });
-        }
+        let objects = file
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(i, spec)| {
+                let ctx = format!("scene '{}' object {}", file.name, i + 1);
+                resolve_object(spec, &mut resolver, &ctx)
+            })
+            .collect::<Result<_>>()?;
         Ok(Scene { file, objects })
     }
 
