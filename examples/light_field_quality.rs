@@ -16,6 +16,7 @@
 //! `ANAGLYPH_DISPUTED=T` sets the disputed measurements' residual tolerance (default
 //! `DISPUTED_TOLERANCE`; 0: the cameras' maps decide visibility alone).
 
+use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
 use anaglyph_core::refine::GuidedRefinement;
@@ -182,7 +183,9 @@ fn main() -> anyhow::Result<()> {
                 },
                 automatic_search_range: false,
                 matching_image,
-                given_disparities: given,
+                given_disparities: given
+                    .map(|maps| column_step_maps(maps, width, height))
+                    .transpose()?,
                 white_reflectance: simulation.settings.white_reflectance,
                 solve: solve_settings(refinements[0], disputed_tolerance),
                 ..PipelineSettings::new(MatchingCost::Learned(&network))
@@ -251,6 +254,7 @@ fn main() -> anyhow::Result<()> {
                 for (view, truth) in field.views.iter().zip(&truth_maps) {
                     let (bad, total) = view
                         .disparity
+                        .data
                         .iter()
                         .zip(truth)
                         .filter(|(_, t)| t.is_finite() && **t > 0.0)
@@ -283,4 +287,22 @@ fn solve_settings(
         scene_prior,
         refinement,
     }
+}
+
+/// Maps per column step of the array (the simulator's convention) as disparity maps.
+fn column_step_maps(
+    maps: Vec<Vec<f32>>,
+    width: usize,
+    height: usize,
+) -> anyhow::Result<Vec<DisparityMap>> {
+    maps.into_iter()
+        .map(|m| {
+            Ok(DisparityMap::new(
+                width,
+                height,
+                DisparityConvention::ColumnStep,
+                m,
+            )?)
+        })
+        .collect()
 }

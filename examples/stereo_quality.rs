@@ -51,7 +51,7 @@ fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp:
         let out = match_pair(&pair.left, &pair.right, cost, &settings).expect("match");
         seconds += started.elapsed().as_secs_f64();
         megapixels += (pair.left.width * pair.left.height) as f64 / 1e6;
-        for (e, t) in out.disparity.iter().zip(&pair.disparity) {
+        for (e, t) in out.disparity.data.iter().zip(&pair.disparity) {
             if !t.is_finite() || *t >= max_disp as f32 - 1.0 {
                 continue;
             }

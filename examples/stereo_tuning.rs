@@ -13,7 +13,7 @@ fn bad2(pairs: &[StereoPair], cost: &MatchingCost<'_>, settings: &MatchSettings)
     let (mut bad, mut total) = (0usize, 0usize);
     for pair in pairs {
         let out = match_pair(&pair.left, &pair.right, cost, settings).expect("match");
-        for (e, t) in out.disparity.iter().zip(&pair.disparity) {
+        for (e, t) in out.disparity.data.iter().zip(&pair.disparity) {
             if t.is_finite() && *t < settings.max_disp as f32 - 1.0 {
                 total += 1;
                 bad += usize::from(!e.is_finite() || (e - t).abs() > 2.0);

@@ -103,7 +103,7 @@ fn stereo_on_neighbours(
             )?;
             seconds += start.elapsed().as_secs_f64();
             pairs += 1;
-            for (i, (&e, &t)) in out.disparity.iter().zip(&left.disparity).enumerate() {
+            for (i, (&e, &t)) in out.disparity.data.iter().zip(&left.disparity).enumerate() {
                 let (x, y) = (i % w, i / w);
                 let xr = (x as f32 - t).round();
                 // Pixels the right camera sees too (its own disparity agrees).

@@ -176,7 +176,7 @@ pub fn run_presets(
         let max_true = field
             .views
             .iter()
-            .flat_map(|v| v.disparity.iter())
+            .flat_map(|v| v.disparity.data.iter())
             .filter(|d| d.is_finite())
             .fold(0.0f32, |a, &b| a.max(b));
         write_disparity_preview(
@@ -188,6 +188,7 @@ pub fn run_presets(
         )?;
         let bad = field.views[0]
             .disparity
+            .data
             .iter()
             .zip(truth_map)
             .filter(|(_, t)| t.is_finite())
@@ -195,13 +196,7 @@ pub fn run_presets(
                 (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
             });
         let estimated = scores(&field, &simulation, &geometry, seconds)?;
-        pipeline.given_disparities = Some(
-            simulation
-                .views
-                .iter()
-                .map(|v| v.disparity.clone())
-                .collect(),
-        );
+        pipeline.given_disparities = Some(simulation.disparity_maps());
         pipeline.registration.mode = RegistrationMode::Pairwise;
         let start = Instant::now();
         let oracle = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;

@@ -5,9 +5,7 @@
 use super::format_seconds;
 use crate::cli::{ChannelChoice, LeftRightChoice, MatchArgs, MatchMethod};
 use crate::progress::spinner;
-use anaglyph_core::io::{
-    read_linear_image, write_atomically, write_disparity_preview, write_pfm, PfmImage,
-};
+use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
 use anaglyph_core::stereo::{
     match_pair, GreyImage, LeftRight, MatchSettings, MatchingCost, MatchingNetwork,
 };
@@ -144,31 +142,22 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     ));
     let out = match_pair(&left, &right, &cost, &settings)?;
     bar.finish_and_clear();
-    let pfm = PfmImage {
-        width: out.width,
-        height: out.height,
-        channels: 1,
-        data: out
-            .disparity
-            .iter()
-            .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
-            .collect(),
-    };
-    write_pfm(&args.out, &pfm)?;
+    write_pfm(&args.out, &out.disparity.to_pfm())?;
+    let map = &out.disparity;
     if let Some(path) = &args.preview {
-        write_disparity_preview(path, &out.disparity, out.width, out.height, max_disp as f32)?;
+        write_disparity_preview(path, &map.data, map.width, map.height, max_disp as f32)?;
     }
-    let valid = out.disparity.iter().filter(|d| d.is_finite()).count();
+    let valid = map.data.iter().filter(|d| d.is_finite()).count();
     let total: f64 = out.timings.iter().map(|t| t.1).sum();
-    let megapixels = (out.width * out.height) as f64 / 1e6;
+    let megapixels = (map.width * map.height) as f64 / 1e6;
     eprintln!(
         "{}: {}×{}, {} disparities, {} ({:.1} % valid) in {}",
         cost.name(),
-        out.width,
-        out.height,
+        map.width,
+        map.height,
         max_disp,
         args.out.display(),
-        100.0 * valid as f64 / out.disparity.len().max(1) as f64,
+        100.0 * valid as f64 / map.data.len().max(1) as f64,
         format_seconds(total)
     );
     for (stage, seconds) in &out.timings {
@@ -184,9 +173,9 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             "right": args.right,
             "method": cost.name(),
             "max_disp": max_disp,
-            "width": out.width,
-            "height": out.height,
-            "valid_fraction": valid as f64 / out.disparity.len().max(1) as f64,
+            "width": map.width,
+            "height": map.height,
+            "valid_fraction": valid as f64 / map.data.len().max(1) as f64,
             "settings": format!("{settings:?}"),
             "timings_s": out.timings.iter().map(|(k, v)| serde_json::json!({"stage": k, "seconds": v})).collect::<Vec<_>>(),
             "total_s": total,

@@ -8,6 +8,7 @@ use crate::cli::{
     MatchingImageChoice, PresetChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg,
     TuningArgs, ViewList, WarpKernelChoice,
 };
+use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
@@ -23,28 +24,22 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::path::Path;
 use std::time::Instant;
 
-/// The simulator's true disparity maps in rig order.
+/// The simulator's true disparity maps in rig order (per column step of the array).
 fn true_disparities(
     dir: &Path,
     rig: &Rig,
     width: usize,
     height: usize,
-) -> anyhow::Result<Vec<Vec<f32>>> {
+) -> anyhow::Result<Vec<DisparityMap>> {
     rig.cameras
         .iter()
         .map(|cam| {
             let path = dir.join(format!("truth/r{}c{}_disparity.pfm", cam.row, cam.col));
-            let map = read_pfm(&path)?;
-            if (map.width, map.height, map.channels) != (width, height, 1) {
-                anyhow::bail!(
-                    "{}: {}x{}x{} (expected {width}x{height}x1, the captures' size)",
-                    path.display(),
-                    map.width,
-                    map.height,
-                    map.channels
-                );
-            }
-            Ok(map.data)
+            let map = DisparityMap::from_pfm(read_pfm(&path)?, DisparityConvention::ColumnStep)
+                .with_context(|| path.display().to_string())?;
+            map.check(width, height, DisparityConvention::ColumnStep)
+                .with_context(|| format!("{}: against the captures", path.display()))?;
+            Ok(map)
         })
         .collect()
 }

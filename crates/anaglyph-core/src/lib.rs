@@ -38,6 +38,7 @@ pub mod builtin;
 pub mod capture;
 mod cpu;
 pub mod demux;
+pub mod disparity;
 mod error;
 pub mod evaluation;
 pub mod filters;

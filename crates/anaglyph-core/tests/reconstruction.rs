@@ -7,6 +7,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use anaglyph_core::builtin;
+use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
 use anaglyph_core::refine::GuidedRefinement;
@@ -42,10 +43,18 @@ fn tabletop_with(metamers: Option<MetamerVariation>) -> (Rig, Simulation) {
     (rig, simulation)
 }
 
+/// Maps per column step (the simulator's convention) as the pipeline takes them.
+fn given(simulation: &Simulation, maps: Vec<Vec<f32>>) -> Vec<DisparityMap> {
+    let (w, h) = (simulation.settings.width, simulation.settings.height);
+    maps.into_iter()
+        .map(|m| DisparityMap::new(w, h, DisparityConvention::ColumnStep, m).unwrap())
+        .collect()
+}
+
 fn settings<'a>(
     mode: RegistrationMode,
     cost: MatchingCost<'a>,
-    given: Option<Vec<Vec<f32>>>,
+    given: Option<Vec<DisparityMap>>,
 ) -> PipelineSettings<'a> {
     PipelineSettings {
         registration: RegistrationSettings {
@@ -88,6 +97,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
         / field.views.len() as f64;
     let bad = field.views[0]
         .disparity
+        .data
         .iter()
         .zip(&maps[0])
         .filter(|(e, t)| !((*e - *t).abs() <= 2.0))
@@ -116,7 +126,7 @@ fn learned_multi_baseline_registration_comes_close_to_the_true_disparities() {
         &settings(
             RegistrationMode::Pairwise,
             MatchingCost::Census,
-            Some(truth),
+            Some(given(&simulation, truth)),
         ),
         &|_, _, _| {},
     )
@@ -174,7 +184,7 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
     let estimated_maps: Vec<Vec<f32>> = estimated
         .views
         .iter()
-        .map(|v| v.disparity.clone())
+        .map(|v| v.disparity.data.clone())
         .collect();
     let mut scores = Vec::new();
     for maps in [truth, estimated_maps] {
@@ -186,7 +196,7 @@ fn guided_refinement_lifts_every_view_with_true_and_estimated_disparities() {
             let mut pipeline = settings(
                 RegistrationMode::Pairwise,
                 MatchingCost::Census,
-                Some(maps.clone()),
+                Some(given(&simulation, maps.clone())),
             );
             pipeline.solve.refinement = refinement;
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
@@ -249,7 +259,7 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
         let mut pipeline = settings(
             RegistrationMode::Pairwise,
             MatchingCost::Census,
-            Some(truth.clone()),
+            Some(given(&simulation, truth.clone())),
         );
         pipeline.solve.refinement = Some(GuidedRefinement::default());
         pipeline.solve.scene_prior = prior;
@@ -313,7 +323,7 @@ fn guided_refinement_still_helps_when_spectra_vary_at_fixed_colour() {
         let mut pipeline = settings(
             RegistrationMode::Pairwise,
             MatchingCost::Census,
-            Some(truth.clone()),
+            Some(given(&simulation, truth.clone())),
         );
         pipeline.solve.refinement = refinement;
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
@@ -342,7 +352,7 @@ fn exposure_metadata_replaces_the_white_board_and_missing_both_is_an_error() {
             &settings(
                 RegistrationMode::Pairwise,
                 MatchingCost::Census,
-                Some(truth.clone()),
+                Some(given(&simulation, truth.clone())),
             ),
             &|_, _, _| {},
         )
@@ -378,7 +388,7 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
     let mut only = settings(
         RegistrationMode::Pairwise,
         MatchingCost::Census,
-        Some(truth),
+        Some(given(&simulation, truth)),
     );
     only.views = Some(vec![(0, 0), (1, 3)]);
     let field = reconstruct(&rig, &captures, &only, &|_, _, _| {}).unwrap();
@@ -507,7 +517,7 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
         let mut pipeline = settings(
             RegistrationMode::Pairwise,
             MatchingCost::Census,
-            Some(truth.clone()),
+            Some(given(&simulation, truth.clone())),
         );
         pipeline.solve.refinement = refinement;
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();

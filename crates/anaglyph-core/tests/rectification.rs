@@ -161,7 +161,6 @@ fn rotated_cameras_are_resampled_onto_the_ideal_image_plane() {
 fn true_disparities_hold_again_after_rectification() {
     let jittered = simulate(Some(JITTER), true);
     let ideal = simulate(None, true);
-    let truth: Vec<Vec<f32>> = ideal.views.iter().map(|v| v.disparity.clone()).collect();
     let settings = PipelineSettings {
         registration: RegistrationSettings {
             mode: RegistrationMode::Pairwise,
@@ -169,7 +168,7 @@ fn true_disparities_hold_again_after_rectification() {
             max_disp: 16,
         },
         automatic_search_range: false,
-        given_disparities: Some(truth),
+        given_disparities: Some(ideal.disparity_maps()),
         solve: SolveSettings::paper(),
         views: Some(vec![(0, 0), (1, 2)]),
         ..PipelineSettings::new(MatchingCost::Census)
@@ -265,7 +264,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         let field = reconstruct(&rig, &captures, &settings, &|_, _, _| {}).unwrap();
         let truth = &simulation.views[0].disparity;
         let (mut wrong, mut counted) = (0, 0);
-        for ((e, t), &inside) in field.views[0].disparity.iter().zip(truth).zip(&inside) {
+        for ((e, t), &inside) in field.views[0].disparity.data.iter().zip(truth).zip(&inside) {
             if inside {
                 counted += 1;
                 wrong += usize::from(!((*e - *t).abs() <= 2.0));

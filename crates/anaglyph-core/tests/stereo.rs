@@ -200,7 +200,7 @@ fn census_sgm_on_simulated_pairs() {
 fn chain_bad2(filters: [&str; 2], cost: &MatchingCost<'_>) -> f64 {
     let (left, right, truth) = tabletop_pair(filters, (256, 192), 1800.0);
     let out = match_pair(&left, &right, cost, &MatchSettings::for_cost(cost, 64)).unwrap();
-    bad2_of(&out.disparity, &truth, left.width, 64)
+    bad2_of(&out.disparity.data, &truth, left.width, 64)
 }
 
 /// The horizontal neighbours of the paper's rig: the pairs the pipeline matches.
@@ -295,10 +295,17 @@ fn vertical_pairs_match_through_transposition() {
         &MatchSettings::for_cost(&cost, max_disp),
     )
     .unwrap();
-    assert_eq!((out.width, out.height), (w, h));
+    assert_eq!((out.disparity.width, out.disparity.height), (w, h));
+    assert_eq!(
+        out.disparity.convention,
+        anaglyph_core::disparity::DisparityConvention::Pair {
+            axis: anaglyph_core::disparity::PairAxis::Vertical
+        }
+    );
     let (mut good, mut total) = (0, 0);
     for (i, (&e, &d)) in out
         .disparity
+        .data
         .iter()
         .zip(&sim.views[0].disparity)
         .enumerate()

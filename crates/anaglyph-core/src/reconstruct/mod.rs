@@ -42,6 +42,7 @@ pub use settings::{
 };
 pub use summary::ViewSummary;
 
+use crate::disparity::DisparityMap;
 use crate::rectify::Rectification;
 use crate::register::{CommonSignal, SearchRange, Visibility, LOW_AGREEMENT_WARNING};
 use crate::rig::Rig;
@@ -76,8 +77,9 @@ pub struct ReconstructedView {
     pub col: usize,
     /// Reflectance, `height × width × bands`, NaN where nothing was measured.
     pub reflectance: Vec<f32>,
-    /// Disparity per column step (the simulator's convention), NaN where unknown.
-    pub disparity: Vec<f32>,
+    /// Disparity per column step of the array (the simulator's convention), NaN where
+    /// unknown.
+    pub disparity: DisparityMap,
     /// Fraction of the view's disparities that a row or column neighbour's map confirms
     /// ([`crate::register::neighbour_agreement`]; None: no finite disparity). It needs no
     /// truth: a failed registration lowers it.

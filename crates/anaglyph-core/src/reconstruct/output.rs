@@ -15,7 +15,7 @@
 
 use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
 use crate::io::{
-    read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube, PfmImage,
+    read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube,
 };
 use crate::rig::Rig;
 use crate::{Error, Result};
@@ -90,7 +90,7 @@ pub fn write_light_field(
     let max_disparity = field
         .views
         .iter()
-        .flat_map(|v| v.disparity.iter())
+        .flat_map(|v| v.disparity.data.iter())
         .filter(|d| d.is_finite())
         .fold(0.0f32, |a, &b| a.max(b));
     let mut files = Vec::new();
@@ -150,21 +150,9 @@ fn write_disparity(
 ) -> Result<[PathBuf; 2]> {
     let (w, h) = (field.width, field.height);
     let pfm = dir.join(format!("disparity/{name}.pfm"));
-    write_pfm(
-        &pfm,
-        &PfmImage {
-            width: w,
-            height: h,
-            channels: 1,
-            data: view
-                .disparity
-                .iter()
-                .map(|&d| if d.is_finite() { d } else { f32::INFINITY })
-                .collect(),
-        },
-    )?;
+    write_pfm(&pfm, &view.disparity.to_pfm())?;
     let png = dir.join(format!("disparity/{name}.png"));
-    write_disparity_preview(&png, &view.disparity, w, h, max_disparity)?;
+    write_disparity_preview(&png, &view.disparity.data, w, h, max_disparity)?;
     Ok([pfm, png])
 }
 

@@ -7,6 +7,7 @@
 //! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
 
 use super::{ArrayCaptures, CalibratedArray, PipelineSettings, RunLog, Stage};
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
     register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage, RegistrationMode,
@@ -54,17 +55,27 @@ pub(super) fn register_array(
 }
 
 /// The given maps, checked against the rig and the captures' size.
-fn given_maps(given: &[Vec<f32>], rig: &Rig, captures: &ArrayCaptures) -> Result<RegisteredArray> {
-    let (w, h) = (captures.width, captures.height);
-    if given.len() != rig.cameras.len() || given.iter().any(|d| d.len() != w * h) {
+fn given_maps(
+    given: &[DisparityMap],
+    rig: &Rig,
+    captures: &ArrayCaptures,
+) -> Result<RegisteredArray> {
+    if given.len() != rig.cameras.len() {
         return Err(Error::Shape {
-            op: "given disparities: maps × pixels".into(),
-            got: vec![given.len(), given.first().map_or(0, Vec::len)],
-            expected: vec![rig.cameras.len(), w * h],
+            op: "given disparities: one map per camera".into(),
+            got: vec![given.len()],
+            expected: vec![rig.cameras.len()],
         });
     }
+    for map in given {
+        map.check(
+            captures.width,
+            captures.height,
+            DisparityConvention::ColumnStep,
+        )?;
+    }
     Ok(RegisteredArray {
-        disparities: given.to_vec(),
+        disparities: given.iter().map(|map| map.data.clone()).collect(),
         ..Default::default()
     })
 }

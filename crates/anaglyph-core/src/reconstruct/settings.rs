@@ -2,6 +2,7 @@
 //! ([`PipelineSettings::validate`]).
 
 use crate::demux::DemuxOptions;
+use crate::disparity::DisparityMap;
 use crate::register::{MatchingImage, RegistrationSettings, WarpKernel, DEFAULT_REGISTRATION};
 use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::MatchingCost;
@@ -79,9 +80,9 @@ pub struct PipelineSettings<'a> {
     /// What multi-baseline registration compares the views by (pairwise registration
     /// always matches luminance).
     pub matching_image: MatchingImage,
-    /// Disparity maps to use instead of registration (one per camera, rig order), e.g.
-    /// the simulator's truth to measure what registration costs.
-    pub given_disparities: Option<Vec<Vec<f32>>>,
+    /// Disparity maps to use instead of registration (one per camera, rig order, per
+    /// column step), e.g. the simulator's truth to measure what registration costs.
+    pub given_disparities: Option<Vec<DisparityMap>>,
     /// Reflectance of the white board.
     pub white_reflectance: f64,
     /// Capture values at or above this fraction of full scale are saturated.

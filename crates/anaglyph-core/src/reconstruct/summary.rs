@@ -27,16 +27,12 @@ pub struct ViewSummary {
 
 impl ReconstructedView {
     pub fn summary(&self) -> ViewSummary {
-        let finite = self.disparity.iter().filter(|v| v.is_finite());
-        let range = finite.fold([f32::INFINITY, f32::NEG_INFINITY], |[a, b], &v| {
-            [a.min(v), b.max(v)]
-        });
         ViewSummary {
             row: self.row,
             col: self.col,
             visibility: self.visibility.clone(),
             demux: self.solve.demux.clone(),
-            disparity_range: range,
+            disparity_range: self.disparity.range(),
             neighbour_agreement: self.neighbour_agreement,
             unmeasured_pixels: self.solve.demux.unmeasured_pixels,
             median_residual: self.solve.median_residual,

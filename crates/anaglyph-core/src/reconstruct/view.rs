@@ -8,6 +8,7 @@
 use super::{CalibratedArray, PipelineSettings, ReconstructedView, RegisteredArray};
 use super::{Progress, RunLog, Stage};
 use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
 use crate::solve::{SolveContext, SolvePlan, ViewSolve};
@@ -121,7 +122,12 @@ impl<'a> ViewPass<'a> {
             row: cam.row,
             col: cam.col,
             reflectance: solve.spectra,
-            disparity: self.registered.disparities[v].clone(),
+            disparity: DisparityMap {
+                width: self.context.views[v].width,
+                height: self.context.views[v].height,
+                convention: DisparityConvention::ColumnStep,
+                data: self.registered.disparities[v].clone(),
+            },
             neighbour_agreement: agreement.is_finite().then_some(agreement),
             visibility,
             solve: solve.report,

@@ -66,7 +66,7 @@ fn along_row(
     };
     if let Some(j) = find(images, view.row, view.col + 1) {
         let out = match_pair(&view.image, &images[j].image, &settings.cost, &chain)?;
-        return Ok(Some(out.disparity));
+        return Ok(Some(out.disparity.into_column_step()?.data));
     }
     if let Some(j) = view
         .col
@@ -80,7 +80,9 @@ fn along_row(
             &settings.cost,
             &chain,
         )?;
-        return Ok(Some(mirror(&with_data(&view.image, out.disparity)).data));
+        return Ok(Some(
+            mirror(&with_data(&view.image, out.disparity.data)).data,
+        ));
     }
     Ok(None)
 }
@@ -106,7 +108,7 @@ fn along_column(
     let to_columns = |d: Vec<f32>| d.into_iter().map(|v| (v as f64 / ratio) as f32).collect();
     if let Some(j) = find(images, view.row + 1, view.col) {
         let out = match_vertical(&view.image, &images[j].image, &settings.cost, &chain)?;
-        return Ok(Some(to_columns(out.disparity)));
+        return Ok(Some(to_columns(out.disparity.data)));
     }
     if let Some(j) = view
         .row
@@ -120,7 +122,7 @@ fn along_column(
             &chain,
         )?;
         return Ok(Some(to_columns(
-            flip(&with_data(&view.image, out.disparity)).data,
+            flip(&with_data(&view.image, out.disparity.data)).data,
         )));
     }
     Ok(None)

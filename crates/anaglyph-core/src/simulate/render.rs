@@ -1,6 +1,7 @@
 //! Ray casting one view of the array and turning its reflectances into captures.
 
 use crate::capture::CameraNoise;
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
 use crate::scene::{
     rotate, rotation, MetamerVariation, PinholeCamera, Scene, SpectralUpsampler, SpectrumSampler,
@@ -343,6 +344,19 @@ impl Tracer<'_> {
 }
 
 impl Simulation {
+    /// Every view's true disparity map, per column step of the array (rig order).
+    pub fn disparity_maps(&self) -> Vec<DisparityMap> {
+        self.views
+            .iter()
+            .map(|v| DisparityMap {
+                width: self.settings.width,
+                height: self.settings.height,
+                convention: DisparityConvention::ColumnStep,
+                data: v.disparity.clone(),
+            })
+            .collect()
+    }
+
     /// Renders every view of `rig` looking at `scene`.
     pub fn run(rig: &Rig, scene: &Scene, settings: SimulationSettings) -> Result<Self> {
         if settings.width == 0

@@ -11,6 +11,7 @@ use super::{
     zncc_cost_volume, Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage,
     MatchingNetwork, SgmParameters,
 };
+use crate::disparity::{DisparityConvention, DisparityMap, PairAxis};
 use crate::{Error, Result};
 use std::time::Instant;
 
@@ -154,12 +155,10 @@ impl MatchSettings {
     }
 }
 
-/// A disparity map (NaN where invalid) with per-stage timings.
+/// A pair's disparity map (NaN where invalid) with per-stage timings.
 #[derive(Debug, Clone)]
 pub struct MatchOutput {
-    pub width: usize,
-    pub height: usize,
-    pub disparity: Vec<f32>,
+    pub disparity: DisparityMap,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(&'static str, f64)>,
 }
@@ -314,9 +313,14 @@ pub fn match_pair(
         lap("bilateral", &mut timings);
     }
     Ok(MatchOutput {
-        width: w,
-        height: h,
-        disparity,
+        disparity: DisparityMap::new(
+            w,
+            h,
+            DisparityConvention::Pair {
+                axis: PairAxis::Horizontal,
+            },
+            disparity,
+        )?,
         timings,
     })
 }
@@ -344,15 +348,20 @@ pub fn match_vertical(
 ) -> Result<MatchOutput> {
     let out = match_pair(&transpose(top), &transpose(bottom), cost, settings)?;
     let transposed = GreyImage {
-        width: out.width,
-        height: out.height,
-        data: out.disparity,
+        width: out.disparity.width,
+        height: out.disparity.height,
+        data: out.disparity.data,
     };
     let back = transpose(&transposed);
     Ok(MatchOutput {
-        width: back.width,
-        height: back.height,
-        disparity: back.data,
+        disparity: DisparityMap::new(
+            back.width,
+            back.height,
+            DisparityConvention::Pair {
+                axis: PairAxis::Vertical,
+            },
+            back.data,
+        )?,
         timings: out.timings,
     })
 }
