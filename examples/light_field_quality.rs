@@ -18,7 +18,7 @@
 
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
-use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
+use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
@@ -57,53 +57,10 @@ fn main() -> anyhow::Result<()> {
         Ok(text) => Some(text.parse::<f64>()?).filter(|&t| t > 0.0),
         Err(_) => Some(DISPUTED_TOLERANCE),
     };
-    type Refinement = (Option<GuidedRefinement>, Option<ScenePriorSettings>);
     let refinements: Vec<Refinement> = std::env::var("ANAGLYPH_REFINEMENTS")
         .unwrap_or_else(|_| "none,4:1e-4:1.5".into())
         .split(',')
-        .map(|item| -> anyhow::Result<_> {
-            let (item, prior) = match item.split_once('+') {
-                Some((item, prior)) => {
-                    let defaults = ScenePriorSettings::default();
-                    let (prior, rounds) = match prior.split_once('^') {
-                        Some((prior, rounds)) => (prior, rounds.parse()?),
-                        None => (prior, defaults.propagation_rounds),
-                    };
-                    let (scale, clusters) = match prior.split_once('@') {
-                        Some((scale, clusters)) => (scale, clusters.parse()?),
-                        None => (prior, defaults.clusters),
-                    };
-                    let noise_scale = scale.parse()?;
-                    (
-                        item,
-                        Some(ScenePriorSettings {
-                            noise_scale,
-                            clusters,
-                            propagation_rounds: rounds,
-                        }),
-                    )
-                }
-                None => (item, None),
-            };
-            if item == "none" {
-                return Ok((None, prior));
-            }
-            let fields: Vec<&str> = item.split(':').collect();
-            let [radius, epsilon, confidence] = fields[..] else {
-                anyhow::bail!(
-                    "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE[@CLUSTERS][^ROUNDS] for the scene prior"
-                );
-            };
-            let confidence: f64 = confidence.parse()?;
-            Ok((
-                Some(GuidedRefinement {
-                    radius: radius.parse()?,
-                    epsilon: epsilon.parse()?,
-                    confidence_scale: (confidence > 0.0).then_some(confidence),
-                }),
-                prior,
-            ))
-        })
+        .map(parse_refinement)
         .collect::<anyhow::Result<_>>()?;
     // ANAGLYPH_METAMERS=AMPLITUDE: texture spectra vary at fixed colour (10 mm features).
     let metamers = match std::env::var("ANAGLYPH_METAMERS") {
@@ -139,37 +96,8 @@ fn main() -> anyhow::Result<()> {
             .filter(|d| d.is_finite())
             .fold(0.0f32, |a, &b| a.max(b));
         let max_disp = (largest * SEARCH_MARGIN).ceil() as usize + 2;
-        let positions: Vec<(usize, usize)> =
-            simulation.views.iter().map(|v| (v.row, v.col)).collect();
         for mode in &modes {
-            let (registration_mode, given) = match mode.as_str() {
-                "truth" => (RegistrationMode::Pairwise, Some(truth_maps.clone())),
-                // The truth with seeded Gaussian errors of σ px (how much subpixel error costs).
-                jittered if jittered.starts_with("truth+") => {
-                    let sigma: f32 = jittered["truth+".len()..].parse()?;
-                    let mut state = 0x9E37_79B9_7F4A_7C15u64;
-                    let mut gauss = move || {
-                        let mut uniform = || {
-                            state ^= state << 13;
-                            state ^= state >> 7;
-                            state ^= state << 17;
-                            (state >> 11) as f32 / (1u64 << 53) as f32
-                        };
-                        let (u, v) = (uniform().max(1e-12), uniform());
-                        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
-                    };
-                    let maps = truth_maps
-                        .iter()
-                        .map(|m| m.iter().map(|&d| d + sigma * gauss()).collect())
-                        .collect();
-                    (RegistrationMode::Pairwise, Some(maps))
-                }
-                "pairwise" => (RegistrationMode::Pairwise, None),
-                "multi-baseline" | "multi-baseline-luminance" => {
-                    (RegistrationMode::MultiBaseline, None)
-                }
-                other => anyhow::bail!("unknown mode {other}"),
-            };
+            let (registration_mode, given) = registration_of(mode, &truth_maps)?;
             let matching_image = if mode == "multi-baseline-luminance" {
                 MatchingImage::Luminance
             } else {
@@ -205,70 +133,19 @@ fn main() -> anyhow::Result<()> {
                     let refined = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
                     (refined, start.elapsed().as_secs_f64())
                 };
-                let mut label = match refinement.0 {
-                    None => "none".to_string(),
-                    Some(r) => format!(
-                        "guided r={} ε={:e} confidence {}",
-                        r.radius,
-                        r.epsilon,
-                        r.confidence_scale.unwrap_or(0.0)
-                    ),
+                let label = label_of(refinement);
+                let row = TableRow {
+                    preset,
+                    mode,
+                    label: &label,
+                    seconds,
                 };
-                if let Some(prior) = refinement.1 {
-                    label += &format!(
-                        ", scene prior ×{} in {} clusters, {} propagation rounds",
-                        prior.noise_scale, prior.clusters, prior.propagation_rounds
-                    );
-                }
-                let nb = field.bands.len();
-                let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
-                let mut reference = None;
-                for (i, view) in field.views.iter().enumerate() {
-                    let truth = &simulation.views[i].truth;
-                    let all = score_cube(truth, &view.reflectance, width, height, nb, None)?;
-                    psnr_sum += all.psnr;
-                    ssim_sum += all.ssim;
-                    if i == 0 {
-                        let mask =
-                            seen_by_all_views(&truth_maps, &positions, 0, &geometry, width, height);
-                        let seen =
-                            score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
-                        reference = Some((all, seen));
-                    }
-                }
-                let n = field.views.len() as f64;
-                if let Some((all, seen)) = reference {
-                    println!(
-                    "| {preset} | {mode} | {label} | {:.2} | {:.4} | {:.2} | {:.2} | {:.4} | {seconds:.1} |",
-                    all.psnr,
-                    all.ssim,
-                    seen.psnr,
-                    psnr_sum / n,
-                    ssim_sum / n
-                );
-                }
+                print_scores(&row, &field, &simulation, &truth_maps, &geometry)?;
                 eprintln!("{preset} {mode} {label}: {:?}", field.timings);
                 if k > 0 {
                     continue;
                 }
-                for (view, truth) in field.views.iter().zip(&truth_maps) {
-                    let (bad, total) = view
-                        .disparity
-                        .data
-                        .iter()
-                        .zip(truth)
-                        .filter(|(_, t)| t.is_finite() && **t > 0.0)
-                        .fold((0, 0), |(b, n), (e, t)| {
-                            (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
-                        });
-                    eprint!(
-                        " r{}c{} bad-2 {:.1} %",
-                        view.row,
-                        view.col,
-                        100.0 * bad as f64 / total.max(1) as f64
-                    );
-                }
-                eprintln!();
+                print_bad2(&field, &truth_maps);
             }
         }
     }
@@ -305,4 +182,178 @@ fn column_step_maps(
             )?)
         })
         .collect()
+}
+
+/// A refinement and scene prior to compare.
+type Refinement = (Option<GuidedRefinement>, Option<ScenePriorSettings>);
+
+/// `none` or `RADIUS:EPSILON:CONFIDENCE`, then `+NOISE_SCALE[@CLUSTERS][^ROUNDS]` for the
+/// scene prior.
+fn parse_refinement(item: &str) -> anyhow::Result<Refinement> {
+    let (item, prior) = match item.split_once('+') {
+        Some((item, prior)) => (item, Some(parse_prior(prior)?)),
+        None => (item, None),
+    };
+    if item == "none" {
+        return Ok((None, prior));
+    }
+    let fields: Vec<&str> = item.split(':').collect();
+    let [radius, epsilon, confidence] = fields[..] else {
+        anyhow::bail!(
+            "refinement {item}: expected none or RADIUS:EPSILON:CONFIDENCE, then +NOISE_SCALE[@CLUSTERS][^ROUNDS] for the scene prior"
+        );
+    };
+    let confidence: f64 = confidence.parse()?;
+    Ok((
+        Some(GuidedRefinement {
+            radius: radius.parse()?,
+            epsilon: epsilon.parse()?,
+            confidence_scale: (confidence > 0.0).then_some(confidence),
+        }),
+        prior,
+    ))
+}
+
+/// `NOISE_SCALE[@CLUSTERS][^ROUNDS]`, the defaults where left out.
+fn parse_prior(text: &str) -> anyhow::Result<ScenePriorSettings> {
+    let defaults = ScenePriorSettings::default();
+    let (prior, rounds) = match text.split_once('^') {
+        Some((prior, rounds)) => (prior, rounds.parse()?),
+        None => (text, defaults.propagation_rounds),
+    };
+    let (scale, clusters) = match prior.split_once('@') {
+        Some((scale, clusters)) => (scale, clusters.parse()?),
+        None => (prior, defaults.clusters),
+    };
+    Ok(ScenePriorSettings {
+        noise_scale: scale.parse()?,
+        clusters,
+        propagation_rounds: rounds,
+    })
+}
+
+/// The registration of a mode, and the maps it is given instead (the truth, or the truth
+/// with seeded Gaussian errors of σ px for `truth+σ`: how much subpixel error costs).
+fn registration_of(
+    mode: &str,
+    truth_maps: &[Vec<f32>],
+) -> anyhow::Result<(RegistrationMode, Option<Vec<Vec<f32>>>)> {
+    Ok(match mode {
+        "truth" => (RegistrationMode::Pairwise, Some(truth_maps.to_vec())),
+        jittered if jittered.starts_with("truth+") => {
+            let sigma: f32 = jittered["truth+".len()..].parse()?;
+            let mut state = 0x9E37_79B9_7F4A_7C15u64;
+            let mut gauss = move || {
+                let mut uniform = || {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 11) as f32 / (1u64 << 53) as f32
+                };
+                let (u, v) = (uniform().max(1e-12), uniform());
+                (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+            };
+            let maps = truth_maps
+                .iter()
+                .map(|m| m.iter().map(|&d| d + sigma * gauss()).collect())
+                .collect();
+            (RegistrationMode::Pairwise, Some(maps))
+        }
+        "pairwise" => (RegistrationMode::Pairwise, None),
+        "multi-baseline" | "multi-baseline-luminance" => (RegistrationMode::MultiBaseline, None),
+        other => anyhow::bail!("unknown mode {other}"),
+    })
+}
+
+/// The table's label of a refinement and scene prior.
+fn label_of(refinement: Refinement) -> String {
+    let mut label = match refinement.0 {
+        None => "none".to_string(),
+        Some(r) => format!(
+            "guided r={} ε={:e} confidence {}",
+            r.radius,
+            r.epsilon,
+            r.confidence_scale.unwrap_or(0.0)
+        ),
+    };
+    if let Some(prior) = refinement.1 {
+        label += &format!(
+            ", scene prior ×{} in {} clusters, {} propagation rounds",
+            prior.noise_scale, prior.clusters, prior.propagation_rounds
+        );
+    }
+    label
+}
+
+/// Each view's bad-2 (% of pixels with a positive true disparity off by more than 2 px).
+fn print_bad2(field: &LightField, truth_maps: &[Vec<f32>]) {
+    for (view, truth) in field.views.iter().zip(truth_maps) {
+        let (bad, total) = view
+            .disparity
+            .data
+            .iter()
+            .zip(truth)
+            .filter(|(_, t)| t.is_finite() && **t > 0.0)
+            .fold((0, 0), |(b, n), (e, t)| {
+                (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
+            });
+        eprint!(
+            " r{}c{} bad-2 {:.1} %",
+            view.row,
+            view.col,
+            100.0 * bad as f64 / total.max(1) as f64
+        );
+    }
+    eprintln!();
+}
+
+/// What a row of the table is about.
+struct TableRow<'a> {
+    preset: &'a str,
+    mode: &'a str,
+    label: &'a str,
+    seconds: f64,
+}
+
+/// Prints the table's row of `field`: r0c0 over all pixels and over the pixels every
+/// camera sees, and the mean over views.
+fn print_scores(
+    row: &TableRow<'_>,
+    field: &LightField,
+    simulation: &Simulation,
+    truth_maps: &[Vec<f32>],
+    geometry: &ArrayGeometry,
+) -> anyhow::Result<()> {
+    let (width, height) = (simulation.settings.width, simulation.settings.height);
+    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
+    let nb = field.bands.len();
+    let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
+    let mut reference = None;
+    for (i, view) in field.views.iter().enumerate() {
+        let truth = &simulation.views[i].truth;
+        let all = score_cube(truth, &view.reflectance, width, height, nb, None)?;
+        psnr_sum += all.psnr;
+        ssim_sum += all.ssim;
+        if i == 0 {
+            let mask = seen_by_all_views(truth_maps, &positions, 0, geometry, width, height);
+            let seen = score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
+            reference = Some((all, seen));
+        }
+    }
+    let n = field.views.len() as f64;
+    if let Some((all, seen)) = reference {
+        println!(
+            "| {} | {} | {} | {:.2} | {:.4} | {:.2} | {:.2} | {:.4} | {:.1} |",
+            row.preset,
+            row.mode,
+            row.label,
+            all.psnr,
+            all.ssim,
+            seen.psnr,
+            psnr_sum / n,
+            ssim_sum / n,
+            row.seconds
+        );
+    }
+    Ok(())
 }

@@ -481,8 +481,8 @@ pub struct DemuxArgs {
     /// Boolean mask of P's shape (true = use the measurement).
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Relative tolerance of the iterative solvers.
-    #[arg(long, default_value_t = 1e-10)]
+    /// Relative tolerance of the iterative solvers, in (0, 1).
+    #[arg(long, default_value_t = 1e-10, value_parser = parse_tolerance)]
     pub tolerance: f64,
 }
 
@@ -552,6 +552,14 @@ fn parse_disputed_tolerance(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
         Ok(v) if (v == 0.0 || v >= 1.0) && v.is_finite() => Ok(v),
         _ => Err(format!("'{text}' (expected 0, or a finite number >= 1)")),
+    }
+}
+
+/// A relative tolerance: a solver asked for 0 or NaN would iterate to its cap on every pixel.
+fn parse_tolerance(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v < 1.0 => Ok(v),
+        _ => Err(format!("'{text}' (expected a number in (0, 1))")),
     }
 }
 

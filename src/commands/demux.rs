@@ -100,24 +100,78 @@ fn print_report(report: &DemuxReport) {
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let (rows, n, c) = read_sensing(&args.sensing)?;
+    if rows == 0 || n == 0 {
+        bail!(
+            "{}: C is {rows} × {n} (expected at least one row and one column)",
+            args.sensing.display()
+        );
+    }
     let envi = args
         .out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
+    // Native .npy in and out streams bands through reader, solver and writer at once;
+    // an ENVI output needs the whole array.
     let stream_reader = if envi {
         None
     } else {
         open_npy_rows(&args.measurements)?
     };
-    let shape_in = match &stream_reader {
-        Some(reader) => reader.shape.clone(),
-        None => Vec::new(),
-    };
     let p = match stream_reader {
         Some(_) => None,
         None => Some(read_npy_float(&args.measurements)?),
     };
-    let shape_in = p.as_ref().map_or(shape_in, |p| p.shape().to_vec());
+    let shape_in = match (&p, &stream_reader) {
+        (Some(p), _) => p.shape().to_vec(),
+        (None, Some(reader)) => reader.shape.clone(),
+        (None, None) => Vec::new(),
+    };
+    check_measurement_shape(&args, &shape_in, rows, envi)?;
+    let mask = read_mask(&args, &shape_in)?;
+    let loaded = start.elapsed().as_secs_f64();
+    warn_if_ill_conditioned(&c, rows, n, args.lambda);
+    let options = DemuxOptions {
+        lambda: args.lambda,
+        solver: args.solver.into(),
+        tolerance: args.tolerance,
+        ..DemuxOptions::default()
+    };
+    let pixels = shape_in.iter().product::<usize>() / rows;
+    let mut shape = shape_in;
+    if let Some(last) = shape.last_mut() {
+        *last = n;
+    }
+    let problem = Problem {
+        c: &c,
+        rows,
+        n,
+        mask: mask.as_deref(),
+        options: &options,
+        pixels,
+    };
+    match p {
+        None => run_streamed(&args, &problem),
+        Some(p) => run_in_memory(&args, &problem, p, &shape, envi, loaded),
+    }
+}
+
+/// C, the mask and the solve of a `demux` run.
+struct Problem<'a> {
+    c: &'a [f64],
+    rows: usize,
+    n: usize,
+    mask: Option<&'a [bool]>,
+    options: &'a DemuxOptions,
+    pixels: usize,
+}
+
+/// Checks P's shape against C and the output format.
+fn check_measurement_shape(
+    args: &DemuxArgs,
+    shape_in: &[usize],
+    rows: usize,
+    envi: bool,
+) -> anyhow::Result<()> {
     let Some(&last) = shape_in.last() else {
         bail!(
             "{}: a 0-d array holds no measurements",
@@ -131,41 +185,6 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
             shape_in
         );
     }
-    let mask = args
-        .mask
-        .as_deref()
-        .map(|path| -> anyhow::Result<Vec<bool>> {
-            let m = read_npy_bool(path)?;
-            if m.shape != shape_in {
-                bail!(
-                    "{}: mask shape {:?} differs from P's {:?}",
-                    path.display(),
-                    m.shape,
-                    shape_in
-                );
-            }
-            Ok(m.data)
-        })
-        .transpose()?;
-    let loaded = start.elapsed().as_secs_f64();
-    let sv = faer::MatRef::from_row_major_slice(&c, rows, n)
-        .singular_values()
-        .ok();
-    if let Some(cond) = sv.as_deref().map(condition_from_singular_values) {
-        if cond > ILL_CONDITIONED_WARNING {
-            eprintln!("warning: cond(C) = {cond:.3e}; the smoothness prior (λ = {}) keeps the solve stable", args.lambda);
-        }
-    }
-    let options = DemuxOptions {
-        lambda: args.lambda,
-        solver: args.solver.into(),
-        tolerance: args.tolerance,
-        ..DemuxOptions::default()
-    };
-    let envi = args
-        .out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
     if envi && shape_in.len() != 3 {
         bail!(
             "an ENVI output needs P of shape H × W × {rows}, got {:?}",
@@ -175,89 +194,122 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     if args.wavelengths.is_some() && !envi {
         bail!("--wavelengths only applies to an ENVI (.hdr) output");
     }
-    let pixels = shape_in.iter().product::<usize>() / rows;
-    let mut shape = shape_in.clone();
-    if let Some(last) = shape.last_mut() {
-        *last = n;
-    }
-    let Some(p) = p else {
-        // Native .npy in and out: stream bands through reader, solver and writer at once.
-        let Some(reader) = open_npy_rows(&args.measurements)? else {
-            bail!("{}: changed while reading", args.measurements.display());
-        };
-        let bar = spinner(format!("demultiplexing {pixels} pixels (streamed)"));
-        let streamed = Instant::now();
-        let report = if reader.stored_as_f32 {
-            super::demux_stream::stream::<f32>(
-                reader,
-                &c,
-                rows,
-                n,
-                mask.as_deref(),
-                &options,
-                &args.out,
-                "<f4",
-            )?
-        } else {
-            super::demux_stream::stream::<f64>(
-                reader,
-                &c,
-                rows,
-                n,
-                mask.as_deref(),
-                &options,
-                &args.out,
-                "<f8",
-            )?
-        };
-        bar.finish_and_clear();
-        let seconds = streamed.elapsed().as_secs_f64();
-        println!(
-            "{pixels} pixels × {rows} measurements -> {n} channels ({:?}, λ = {}): read, solve and write overlapped in {} ({:.1} Mpixel/s)",
-            args.solver,
-            args.lambda,
-            format_seconds(seconds),
-            pixels as f64 / seconds / 1e6
-        );
-        print_report(&report);
-        return Ok(());
+    Ok(())
+}
+
+/// The `--mask`, checked against P's shape.
+fn read_mask(args: &DemuxArgs, shape_in: &[usize]) -> anyhow::Result<Option<Vec<bool>>> {
+    let Some(path) = args.mask.as_deref() else {
+        return Ok(None);
     };
+    let m = read_npy_bool(path)?;
+    if m.shape != shape_in {
+        bail!(
+            "{}: mask shape {:?} differs from P's {:?}",
+            path.display(),
+            m.shape,
+            shape_in
+        );
+    }
+    Ok(Some(m.data))
+}
+
+fn warn_if_ill_conditioned(c: &[f64], rows: usize, n: usize, lambda: f64) {
+    let sv = faer::MatRef::from_row_major_slice(c, rows, n)
+        .singular_values()
+        .ok();
+    if let Some(cond) = sv.as_deref().map(condition_from_singular_values) {
+        if cond > ILL_CONDITIONED_WARNING {
+            eprintln!(
+                "warning: cond(C) = {cond:.3e}; the smoothness prior (λ = {lambda}) keeps the solve stable"
+            );
+        }
+    }
+}
+
+/// .npy in and out, band after band through reader, solver and writer.
+fn run_streamed(args: &DemuxArgs, problem: &Problem<'_>) -> anyhow::Result<()> {
+    let Some(reader) = open_npy_rows(&args.measurements)? else {
+        bail!("{}: changed while reading", args.measurements.display());
+    };
+    let Problem {
+        c,
+        rows,
+        n,
+        mask,
+        options,
+        pixels,
+    } = *problem;
+    let bar = spinner(format!("demultiplexing {pixels} pixels (streamed)"));
+    let streamed = Instant::now();
+    let report = if reader.stored_as_f32 {
+        super::demux_stream::stream::<f32>(reader, c, rows, n, mask, options, &args.out, "<f4")?
+    } else {
+        super::demux_stream::stream::<f64>(reader, c, rows, n, mask, options, &args.out, "<f8")?
+    };
+    bar.finish_and_clear();
+    let seconds = streamed.elapsed().as_secs_f64();
+    println!(
+        "{pixels} pixels × {rows} measurements -> {n} channels ({:?}, λ = {}): read, solve and write overlapped in {} ({:.1} Mpixel/s)",
+        args.solver,
+        args.lambda,
+        format_seconds(seconds),
+        pixels as f64 / seconds / 1e6
+    );
+    print_report(&report);
+    Ok(())
+}
+
+/// The whole array in memory, solved and saved in its own float type.
+fn run_in_memory(
+    args: &DemuxArgs,
+    problem: &Problem<'_>,
+    p: FloatArray,
+    shape: &[usize],
+    envi: bool,
+    loaded: f64,
+) -> anyhow::Result<()> {
+    let Problem {
+        rows, n, pixels, ..
+    } = *problem;
     let bar = spinner(format!("demultiplexing {pixels} pixels"));
-    // Solve and save in the input's own float type (no whole-image conversions).
     fn solve<T: Sample>(
-        c: &[f64],
-        rows: usize,
-        n: usize,
+        problem: &Problem<'_>,
         data: &[T],
-        mask: Option<&[bool]>,
-        options: &DemuxOptions,
     ) -> anyhow::Result<(Vec<T>, DemuxReport, f64)> {
         let start = Instant::now();
-        let (s, report) = demultiplex_as::<T, T>(c, rows, data, mask, 0..n, options)?;
+        let (s, report) = demultiplex_as::<T, T>(
+            problem.c,
+            problem.rows,
+            data,
+            problem.mask,
+            0..problem.n,
+            problem.options,
+        )?;
         Ok((s, report, start.elapsed().as_secs_f64()))
     }
     let (report, solved, save_start) = match p {
         FloatArray::F32(a) => {
-            let (s, report, solved) = solve(&c, rows, n, &a.data, mask.as_deref(), &options)?;
+            let (s, report, solved) = solve(problem, &a.data)?;
             drop(a);
             bar.finish_and_clear();
             let save_start = Instant::now();
             if envi {
-                write_cube(&args, &shape, s)?;
+                write_cube(args, shape, s)?;
             } else {
-                write_npy_f32(&args.out, &shape, s)?;
+                write_npy_f32(&args.out, shape, s)?;
             }
             (report, solved, save_start)
         }
         FloatArray::F64(a) => {
-            let (s, report, solved) = solve(&c, rows, n, &a.data, mask.as_deref(), &options)?;
+            let (s, report, solved) = solve(problem, &a.data)?;
             drop(a);
             bar.finish_and_clear();
             let save_start = Instant::now();
             if envi {
-                write_cube(&args, &shape, s.iter().map(|&v| v as f32).collect())?;
+                write_cube(args, shape, s.iter().map(|&v| v as f32).collect())?;
             } else {
-                write_npy_f64(&args.out, &shape, s)?;
+                write_npy_f64(&args.out, shape, s)?;
             }
             (report, solved, save_start)
         }

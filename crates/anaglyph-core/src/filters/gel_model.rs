@@ -96,212 +96,45 @@ impl GelFilter {
     }
 }
 
+/// The modelled gels as (name, shape, peak transmission, floor), in hue order from yellow
+/// through red, magenta and blue to green (the model: data/filters/README.md).
+#[rustfmt::skip]
+const GELS: [(&str, GelShape, f64, f64); 20] = {
+    use GelShape::*;
+    [
+        ("gel_straw", LongPass { edge: 470.0, width: 14.0 }, 0.90, 0.30),
+        ("gel_yellow", LongPass { edge: 500.0, width: 8.0 }, 0.90, 0.03),
+        ("gel_deep_yellow", LongPass { edge: 525.0, width: 7.0 }, 0.88, 0.02),
+        ("gel_amber", LongPass { edge: 550.0, width: 12.0 }, 0.86, 0.08),
+        ("gel_orange", LongPass { edge: 570.0, width: 8.0 }, 0.86, 0.03),
+        ("gel_red", LongPass { edge: 600.0, width: 7.0 }, 0.85, 0.02),
+        ("gel_deep_red", LongPass { edge: 630.0, width: 7.0 }, 0.83, 0.02),
+        ("gel_salmon", BandStop { low: 440.0, high: 570.0, width: 12.0, depth: 0.65 }, 0.88, 0.05),
+        ("gel_pink", BandStop { low: 480.0, high: 570.0, width: 10.0, depth: 0.55 }, 0.90, 0.05),
+        ("gel_magenta", BandStop { low: 490.0, high: 595.0, width: 9.0, depth: 0.95 }, 0.85, 0.03),
+        ("gel_lavender", BandStop { low: 520.0, high: 620.0, width: 14.0, depth: 0.45 }, 0.88, 0.05),
+        ("gel_violet", TwoBand { blue_edge: 465.0, red_edge: 640.0, width: 9.0, blue_gain: 0.9 }, 0.80, 0.02),
+        ("gel_deep_blue", BandPass { low: 420.0, high: 490.0, width: 8.0 }, 0.75, 0.02),
+        ("gel_blue", ShortPass { edge: 510.0, width: 9.0 }, 0.80, 0.03),
+        ("gel_light_blue", ShortPass { edge: 560.0, width: 16.0 }, 0.85, 0.20),
+        ("gel_cyan", ShortPass { edge: 585.0, width: 9.0 }, 0.82, 0.03),
+        ("gel_teal", BandPass { low: 460.0, high: 545.0, width: 9.0 }, 0.78, 0.03),
+        ("gel_green", BandPass { low: 490.0, high: 580.0, width: 9.0 }, 0.80, 0.02),
+        ("gel_yellow_green", BandPass { low: 510.0, high: 610.0, width: 10.0 }, 0.84, 0.04),
+        ("gel_emerald", BandPass { low: 475.0, high: 555.0, width: 6.0 }, 0.72, 0.02),
+    ]
+};
+
 /// The 20 modelled gels, in hue order from yellow through red, magenta and blue to green.
 pub fn gel_library() -> Vec<GelFilter> {
-    use GelShape::*;
-    let f = |name, shape, peak, floor| GelFilter {
-        name,
-        shape,
-        peak,
-        floor,
-    };
-    vec![
-        f(
-            "gel_straw",
-            LongPass {
-                edge: 470.0,
-                width: 14.0,
-            },
-            0.90,
-            0.30,
-        ),
-        f(
-            "gel_yellow",
-            LongPass {
-                edge: 500.0,
-                width: 8.0,
-            },
-            0.90,
-            0.03,
-        ),
-        f(
-            "gel_deep_yellow",
-            LongPass {
-                edge: 525.0,
-                width: 7.0,
-            },
-            0.88,
-            0.02,
-        ),
-        f(
-            "gel_amber",
-            LongPass {
-                edge: 550.0,
-                width: 12.0,
-            },
-            0.86,
-            0.08,
-        ),
-        f(
-            "gel_orange",
-            LongPass {
-                edge: 570.0,
-                width: 8.0,
-            },
-            0.86,
-            0.03,
-        ),
-        f(
-            "gel_red",
-            LongPass {
-                edge: 600.0,
-                width: 7.0,
-            },
-            0.85,
-            0.02,
-        ),
-        f(
-            "gel_deep_red",
-            LongPass {
-                edge: 630.0,
-                width: 7.0,
-            },
-            0.83,
-            0.02,
-        ),
-        f(
-            "gel_salmon",
-            BandStop {
-                low: 440.0,
-                high: 570.0,
-                width: 12.0,
-                depth: 0.65,
-            },
-            0.88,
-            0.05,
-        ),
-        f(
-            "gel_pink",
-            BandStop {
-                low: 480.0,
-                high: 570.0,
-                width: 10.0,
-                depth: 0.55,
-            },
-            0.90,
-            0.05,
-        ),
-        f(
-            "gel_magenta",
-            BandStop {
-                low: 490.0,
-                high: 595.0,
-                width: 9.0,
-                depth: 0.95,
-            },
-            0.85,
-            0.03,
-        ),
-        f(
-            "gel_lavender",
-            BandStop {
-                low: 520.0,
-                high: 620.0,
-                width: 14.0,
-                depth: 0.45,
-            },
-            0.88,
-            0.05,
-        ),
-        f(
-            "gel_violet",
-            TwoBand {
-                blue_edge: 465.0,
-                red_edge: 640.0,
-                width: 9.0,
-                blue_gain: 0.9,
-            },
-            0.80,
-            0.02,
-        ),
-        f(
-            "gel_deep_blue",
-            BandPass {
-                low: 420.0,
-                high: 490.0,
-                width: 8.0,
-            },
-            0.75,
-            0.02,
-        ),
-        f(
-            "gel_blue",
-            ShortPass {
-                edge: 510.0,
-                width: 9.0,
-            },
-            0.80,
-            0.03,
-        ),
-        f(
-            "gel_light_blue",
-            ShortPass {
-                edge: 560.0,
-                width: 16.0,
-            },
-            0.85,
-            0.20,
-        ),
-        f(
-            "gel_cyan",
-            ShortPass {
-                edge: 585.0,
-                width: 9.0,
-            },
-            0.82,
-            0.03,
-        ),
-        f(
-            "gel_teal",
-            BandPass {
-                low: 460.0,
-                high: 545.0,
-                width: 9.0,
-            },
-            0.78,
-            0.03,
-        ),
-        f(
-            "gel_green",
-            BandPass {
-                low: 490.0,
-                high: 580.0,
-                width: 9.0,
-            },
-            0.80,
-            0.02,
-        ),
-        f(
-            "gel_yellow_green",
-            BandPass {
-                low: 510.0,
-                high: 610.0,
-                width: 10.0,
-            },
-            0.84,
-            0.04,
-        ),
-        f(
-            "gel_emerald",
-            BandPass {
-                low: 475.0,
-                high: 555.0,
-                width: 6.0,
-            },
-            0.72,
-            0.02,
-        ),
-    ]
+    GELS.iter()
+        .map(|&(name, shape, peak, floor)| GelFilter {
+            name,
+            shape,
+            peak,
+            floor,
+        })
+        .collect()
 }
 
 #[cfg(test)]
