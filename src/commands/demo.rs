@@ -197,17 +197,18 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let total = Instant::now();
     println!("anaglyph demo: the spectral core end to end (paper sections 2.3, 3.2, 4.1c-d)\n");
     let selected = select_paper_rig()?;
-    let core = SpectralCore::of(&selected.filters, &args)?;
+    let names: Vec<&str> = selected.filters.iter().map(String::as_str).collect();
+    let core = SpectralCore::of(&names, &args)?;
     let all = core.recover_all()?;
     let colorchecker = core.recover_chart()?;
     let out_of_band = core.compare_out_of_band()?;
     let solvers = core.compare_solvers()?;
     let (noise_filters, noise_psnr) = core.select_by_noise(&selected, all.psnr)?;
-    let (presets, simulation) = light_fields(&args, &selected.filters)?;
+    let (presets, simulation) = light_fields(&args, &names)?;
     let (width, _) = args.size;
     let stereo = stereo_section(&simulation, (width / 10).max(8))?;
     let noise_in_c = noise_in_c_section(&core, args.seed)?;
-    let filters: Vec<String> = selected.filters.iter().map(|s| s.to_string()).collect();
+    let filters = selected.filters.clone();
     let chart_svgs = write_chart_spectra(&args.out, &colorchecker, &core.chart, &core.centres)?;
     let noise_svg = "noise_in_c.svg";
     plot_series(
@@ -275,7 +276,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
 
 /// The filters section 1 chose, with what chose them.
 struct SelectedRig {
-    filters: Vec<&'static str>,
+    filters: Vec<String>,
     inputs: SelectionInputs,
     options: SelectionOptions,
 }
@@ -304,22 +305,13 @@ fn select_paper_rig() -> anyhow::Result<SelectedRig> {
     let filters = selection.best[0]
         .filters
         .iter()
-        .map(|&f| builtin_name(&selection.candidates[f]))
-        .collect::<anyhow::Result<_>>()?;
+        .map(|&f| selection.candidates[f].clone())
+        .collect();
     Ok(SelectedRig {
         filters,
         inputs,
         options,
     })
-}
-
-/// The built-in filter of that name, as a `'static` name.
-fn builtin_name(name: &str) -> anyhow::Result<&'static str> {
-    builtin::filter_names()
-        .iter()
-        .copied()
-        .find(|&n| n == name)
-        .ok_or_else(|| anyhow::anyhow!("selected filter {name} is not built in"))
 }
 
 /// The selected rig's C and what sections 3 to 6 and 9 measure through it.

@@ -108,6 +108,8 @@ pub struct LightField {
     pub search_range: Option<SearchRange>,
     /// The stages of every view's solve and their settings.
     pub solve: SolveSettings,
+    /// The names of the solve's stages that ran, in order.
+    pub solve_stages: Vec<&'static str>,
     /// The common signals registration matched by (None: luminance, or no registration).
     pub common_signals: Option<Vec<CommonSignal>>,
     pub condition_number: f64,
@@ -152,6 +154,7 @@ pub fn reconstruct(
         rectification: rectified.map(|r| r.plan),
         search_range: registered.search_range,
         solve: settings.solve,
+        solve_stages: plan.names(),
         common_signals: registered.common_signals,
         condition_number: calibrated.condition_number,
         timings: log.timings,

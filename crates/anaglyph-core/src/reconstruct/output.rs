@@ -229,7 +229,7 @@ fn write_manifest(
         calibration: &field.calibration,
         rectification: field.rectification.as_ref(),
         search_range: field.search_range.as_ref(),
-        solve_stages: crate::solve::SolvePlan::new(&field.solve)?.names(),
+        solve_stages: field.solve_stages.clone(),
         refinement: field.solve.refinement,
         scene_prior: field.solve.scene_prior,
         disputed_tolerance: field.solve.disputed_tolerance,
