@@ -204,9 +204,10 @@ fn render_pair(
     let (lv, rv) = match (views.next(), views.next()) {
         (Some(l), Some(r)) => (l, r),
         _ => {
-            return Err(anaglyph_core::Error::Invalid {
-                context: "stereo pair".into(),
-                message: "the simulator returned fewer than two views".into(),
+            return Err(anaglyph_core::Error::Mismatch {
+                what: "simulated stereo pair".into(),
+                found: "fewer than two views".into(),
+                expected: "two views".into(),
             })
         }
     };

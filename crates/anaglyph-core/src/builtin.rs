@@ -68,15 +68,14 @@ pub const FILTERS: &[(&str, &str)] = embedded! {
 };
 
 fn find(kind: &str, table: &[(&str, &str)], name: &str) -> Result<ResponseCurve> {
-    let (key, text) = table.iter().find(|(k, _)| *k == name).ok_or_else(|| {
-        Error::invalid(
-            format!("builtin {kind}"),
-            format!(
-                "no {kind} named '{name}' (available: {})",
-                table.iter().map(|(k, _)| *k).collect::<Vec<_>>().join(", ")
-            ),
-        )
-    })?;
+    let (key, text) = table
+        .iter()
+        .find(|(k, _)| *k == name)
+        .ok_or_else(|| Error::NotFound {
+            what: format!("built-in {kind}"),
+            name: name.to_string(),
+            available: table.iter().map(|(k, _)| *k).collect::<Vec<_>>().join(", "),
+        })?;
     ResponseCurve::from_csv_str(*key, text)
 }
 
@@ -110,10 +109,11 @@ pub fn any(name: &str) -> Result<ResponseCurve> {
     if name == "cie_1931_2deg_cmf" {
         return ResponseCurve::from_csv_str(name, CIE_1931_CMF);
     }
-    Err(Error::invalid(
-        "builtin curve",
-        format!("no built-in curve named '{name}' (see `anaglyph rig init --help` for the list)"),
-    ))
+    Err(Error::NotFound {
+        what: "built-in curve".into(),
+        name: name.to_string(),
+        available: "see `anaglyph rig init --help` for the list".into(),
+    })
 }
 
 /// Names of all built-in filters.

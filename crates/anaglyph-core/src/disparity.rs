@@ -76,9 +76,10 @@ impl DisparityMap {
                 convention: DisparityConvention::ColumnStep,
                 ..self
             }),
-            other => Err(Error::invalid(
-                "disparity map",
-                format!("a {other:?} map has no column-step reading without the array geometry"),
+            other => Err(Error::mismatch(
+                "disparity map convention",
+                format!("{other:?} (no column-step reading without the array geometry)"),
+                "ColumnStep or a horizontal pair",
             )),
         }
     }
@@ -98,12 +99,10 @@ impl DisparityMap {
             });
         }
         if self.convention != convention {
-            return Err(Error::invalid(
-                "disparity map",
-                format!(
-                    "{:?} map where a {convention:?} map is needed",
-                    self.convention
-                ),
+            return Err(Error::mismatch(
+                "disparity map convention",
+                format!("{:?}", self.convention),
+                format!("{convention:?}"),
             ));
         }
         Ok(())

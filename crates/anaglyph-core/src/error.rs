@@ -4,7 +4,9 @@
 
 use std::path::PathBuf;
 
-/// Errors of the spectral core.
+/// Errors of the spectral core, one variant per cause. Each carries what was found and
+/// what was expected (or what is available), so that a caller can match the cause and a
+/// user can fix the input without reading the code.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     #[error("{path}: {source}")]
@@ -20,9 +22,6 @@ pub enum Error {
         line: usize,
         message: String,
     },
-
-    #[error("{context}: {message}")]
-    Invalid { context: String, message: String },
 
     #[error("{}: {field} is {found} (expected {expected})", file.display())]
     BadField {
@@ -52,6 +51,29 @@ pub enum Error {
 
     #[error("{what} is {value} (expected a finite number)")]
     NonFinite { what: String, value: f64 },
+
+    #[error("no {what} '{name}' (available: {available})")]
+    NotFound {
+        what: String,
+        name: String,
+        available: String,
+    },
+
+    #[error("{what}: {found} (expected {expected})")]
+    Mismatch {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    #[error("{what} cannot be used: {why}")]
+    Unusable { what: String, why: String },
+
+    #[error("{}: cannot decode: {message}", file.display())]
+    Decode { file: PathBuf, message: String },
+
+    #[error("writing {what}: {message}")]
+    Output { what: String, message: String },
 
     #[error(
         "curve '{name}' covers {have_start} to {have_end} nm but {need_start} to {need_end} nm is needed"
@@ -114,10 +136,10 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
-    pub(crate) fn invalid(context: impl Into<String>, message: impl Into<String>) -> Self {
-        Error::Invalid {
-            context: context.into(),
-            message: message.into(),
+    pub(crate) fn decode(file: impl Into<PathBuf>, message: impl ToString) -> Self {
+        Error::Decode {
+            file: file.into(),
+            message: message.to_string(),
         }
     }
 
@@ -144,6 +166,32 @@ impl Error {
             field: field.into(),
             found: found.to_string(),
             expected: expected.into(),
+        }
+    }
+
+    pub(crate) fn mismatch(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Mismatch {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    pub(crate) fn unusable(what: impl Into<String>, why: impl Into<String>) -> Self {
+        Error::Unusable {
+            what: what.into(),
+            why: why.into(),
+        }
+    }
+
+    pub(crate) fn output(what: impl Into<String>, message: impl ToString) -> Self {
+        Error::Output {
+            what: what.into(),
+            message: message.to_string(),
         }
     }
 

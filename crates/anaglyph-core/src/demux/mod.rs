@@ -340,20 +340,18 @@ fn validate<I: Sample>(
     options: &DemuxOptions,
 ) -> Result<(usize, bool)> {
     if rows == 0 || rows > MAX_MEASUREMENTS || !c.len().is_multiple_of(rows) || c.is_empty() {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "sensing matrix",
-            format!(
-                "{} values in {rows} rows (expected 1 to {MAX_MEASUREMENTS} full rows)",
-                c.len()
-            ),
+            format!("{} values in {rows} rows", c.len()),
+            format!("1 to {MAX_MEASUREMENTS} full rows"),
         ));
     }
     let n = c.len() / rows;
     if let Some(v) = c.iter().find(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            "sensing matrix",
-            format!("holds {v} (NaN/Inf not allowed)"),
-        ));
+        return Err(Error::NonFinite {
+            what: "a value of the sensing matrix".into(),
+            value: *v,
+        });
     }
     if !measurements.len().is_multiple_of(rows) {
         return Err(Error::Shape {
@@ -393,26 +391,25 @@ fn validate<I: Sample>(
             |a, b| (a.0.min(b.0).or(a.0).or(b.0), a.1 || b.1),
         );
     if let Some(i) = first_infinite {
-        return Err(Error::invalid(
-            "measurements",
-            format!(
-                "pixel {} channel {} is infinite (use NaN for a missing value)",
-                i / rows,
-                i % rows
-            ),
+        return Err(Error::mismatch(
+            format!("measurement of pixel {} channel {}", i / rows, i % rows),
+            "infinite",
+            "a finite value, or NaN for a missing one",
         ));
     }
     let complete = !any_missing && mask.is_none_or(|m| m.par_iter().all(|&k| k));
     if output.end > n || output.is_empty() {
-        return Err(Error::invalid(
-            "demultiplex",
-            format!("output knots {output:?} of {n}"),
+        return Err(Error::mismatch(
+            "demultiplex: output knots",
+            format!("{output:?}"),
+            format!("a non-empty range within the {n} knots of C"),
         ));
     }
     if !(options.lambda.is_finite() && options.lambda >= 0.0) {
-        return Err(Error::invalid(
-            "demultiplex",
-            format!("lambda {} (expected finite and >= 0)", options.lambda),
+        return Err(Error::out_of_range(
+            "lambda",
+            options.lambda,
+            "finite and >= 0",
         ));
     }
     Ok((n, complete))

@@ -225,11 +225,24 @@ fn bad_input_is_an_error_not_a_panic() {
     let c = [1.0, 0.0, 0.0, 1.0];
     let o = options(Solver::Exact, 0.01);
     assert!(demultiplex(&c, 2, &[1.0, 2.0, 3.0], None, 0..2, &o).is_err());
-    assert!(demultiplex(&c, 2, &[1.0, f64::INFINITY], None, 0..2, &o)
-        .unwrap_err()
-        .to_string()
-        .contains("infinite"));
-    assert!(demultiplex(&[1.0, f64::NAN, 0.0, 1.0], 2, &[1.0, 1.0], None, 0..2, &o).is_err());
+    let infinite = demultiplex(&c, 2, &[1.0, f64::INFINITY], None, 0..2, &o).unwrap_err();
+    assert!(matches!(infinite, Error::Mismatch { .. }), "{infinite:?}");
+    assert!(infinite.to_string().contains("infinite"));
+    assert!(matches!(
+        demultiplex(&[1.0, f64::NAN, 0.0, 1.0], 2, &[1.0, 1.0], None, 0..2, &o),
+        Err(Error::NonFinite { .. })
+    ));
+    assert!(matches!(
+        demultiplex(
+            &c,
+            2,
+            &[1.0, 1.0],
+            None,
+            0..2,
+            &options(Solver::Exact, -1.0)
+        ),
+        Err(Error::OutOfRange { .. })
+    ));
     assert!(demultiplex(&c, 2, &[1.0, 1.0], Some(&[true]), 0..2, &o).is_err());
     assert!(demultiplex(&c, 2, &[1.0, 1.0], None, 0..3, &o).is_err());
     let singular = demultiplex(

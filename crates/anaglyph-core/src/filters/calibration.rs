@@ -36,21 +36,23 @@ pub fn calibrate_filter(
     relative_error: f64,
 ) -> Result<FilterCalibration> {
     if !(relative_error.is_finite() && (0.0..1.0).contains(&relative_error)) {
-        return Err(Error::invalid(
-            "filter calibration",
-            format!("relative error {relative_error} (expected 0 <= E < 1)"),
+        return Err(Error::out_of_range(
+            "filter calibration relative error",
+            relative_error,
+            "0 <= E < 1",
         ));
     }
     if without.channel_count() != with.channel_count() {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "filter calibration",
             format!(
-                "'{}' has {} columns but '{}' has {} (expected the same targets in both)",
+                "'{}' has {} columns but '{}' has {}",
                 without.name(),
                 without.channel_count(),
                 with.name(),
                 with.channel_count()
             ),
+            "the same targets in both readings",
         ));
     }
     let (a, b) = with.domain();
@@ -80,9 +82,9 @@ pub fn calibrate_filter(
         .collect();
     let peak = energy.iter().cloned().fold(0.0, f64::max);
     if peak <= 0.0 {
-        return Err(Error::invalid(
-            "filter calibration",
-            format!("reference '{}' is zero everywhere", without.name()),
+        return Err(Error::unusable(
+            format!("reference reading '{}'", without.name()),
+            "it is zero everywhere",
         ));
     }
     let mut dark = Vec::new();

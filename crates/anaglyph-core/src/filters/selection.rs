@@ -206,13 +206,10 @@ pub fn select_filters(
     } = *camera;
     let k = options.count;
     if k == 0 || k > candidates.len() {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "filter selection",
-            format!(
-                "count {k} with {} candidates (expected 1 to {})",
-                candidates.len(),
-                candidates.len()
-            ),
+            format!("count {k} with {} candidates", candidates.len()),
+            format!("a count of 1 to {}", candidates.len()),
         ));
     }
     let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = candidates

@@ -18,9 +18,10 @@ pub fn write_atomically(
         _ => Path::new("."),
     };
     let file_name = path.file_name().ok_or_else(|| {
-        Error::invalid(
+        Error::mismatch(
             "output path",
-            format!("'{}' has no file name", path.display()),
+            format!("'{}' without a file name", path.display()),
+            "a path to a file",
         )
     })?;
     let tmp = dir.join(format!(

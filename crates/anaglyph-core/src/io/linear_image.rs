@@ -27,9 +27,10 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(MAX_RASTER_VALUES * 2);
     reader.limits(limits);
-    let decoded = reader
-        .decode()
-        .map_err(|e| Error::invalid(path.display().to_string(), e.to_string()))?;
+    let decoded = reader.decode().map_err(|e| Error::Decode {
+        file: path.into(),
+        message: e.to_string(),
+    })?;
     use image::DynamicImage as D;
     let (width, height) = (decoded.width() as usize, decoded.height() as usize);
     let (channels, bit_depth, data): (usize, u8, Vec<f32>) = match decoded {
@@ -88,13 +89,12 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
                 .collect(),
         ),
         other => {
-            return Err(Error::invalid(
-                path.display().to_string(),
-                format!(
-                    "pixel type {:?} (expected 8/16-bit grey or RGB)",
-                    other.color()
-                ),
-            ))
+            return Err(Error::UnsupportedFormat {
+                file: path.into(),
+                what: "pixel type".into(),
+                found: format!("{:?}", other.color()),
+                supported: "8- or 16-bit grey or RGB".into(),
+            })
         }
     };
     Ok(LinearImage {
@@ -112,9 +112,10 @@ pub fn write_png16(path: &Path, image: &LinearImage) -> Result<()> {
         1 => image::ExtendedColorType::L16,
         3 => image::ExtendedColorType::Rgb16,
         c => {
-            return Err(Error::invalid(
-                "write_png16",
-                format!("{c} channels (expected 1 or 3)"),
+            return Err(Error::mismatch(
+                "16-bit PNG output",
+                format!("{c} channels"),
+                "1 or 3",
             ))
         }
     };

@@ -290,12 +290,10 @@ impl NpyRowReader {
         use std::io::Read;
         let item = if self.stored_as_f32 { 4 } else { 8 };
         if std::mem::size_of::<T>() != item {
-            return Err(Error::invalid(
-                "npy stream",
-                format!(
-                    "buffer element of {} bytes for {item}-byte data",
-                    std::mem::size_of::<T>()
-                ),
+            return Err(Error::mismatch(
+                "npy stream buffer element",
+                format!("{} bytes", std::mem::size_of::<T>()),
+                format!("{item} bytes, the stored type"),
             ));
         }
         let rows = (buffer.len() / self.row_len.max(1)).min(self.rows_left);
@@ -345,8 +343,8 @@ fn write_array<T: ndarray_npy::WritableElement + Clone>(
     shape: &[usize],
     data: Vec<T>,
 ) -> Result<()> {
-    let array = ArrayD::from_shape_vec(IxDyn(shape), data)
-        .map_err(|e| Error::invalid("write_npy", e.to_string()))?;
+    let array =
+        ArrayD::from_shape_vec(IxDyn(shape), data).map_err(|e| Error::output(".npy array", e))?;
     write_atomically(path, |w| array.write_npy(w).map_err(std::io::Error::other))
 }
 

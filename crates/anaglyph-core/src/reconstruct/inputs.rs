@@ -71,14 +71,12 @@ fn find_in(dir: &Path, row: usize, col: usize, extensions: &[&str], what: &str) 
         .iter()
         .map(|e| dir.join(format!("r{row}c{col}.{e}")))
         .find(|p| p.is_file())
-        .ok_or_else(|| {
-            Error::invalid(
-                dir.display().to_string(),
-                format!(
-                    "no {what} r{row}c{col}.{} for camera r{row}c{col}",
-                    extensions.join(", .")
-                ),
-            )
+        .ok_or_else(|| Error::MissingFile {
+            path: dir.join(format!("r{row}c{col}.{}", extensions[0])),
+            what: format!(
+                "no {what} r{row}c{col}.{} for camera r{row}c{col}",
+                extensions.join(", .")
+            ),
         })
 }
 
@@ -98,9 +96,10 @@ impl ArrayCaptures {
             let capture_path = match captures {
                 Some(dir) => find_in(dir, cam.row, cam.col, &EXTENSIONS, "capture")?,
                 None => cam.image.clone().ok_or_else(|| {
-                    Error::invalid(
+                    Error::mismatch(
                         &name,
-                        "the rig file names no image and no --captures folder was given",
+                        "no image in the rig file and no --captures folder",
+                        "a capture for every camera",
                     )
                 })?,
             };
@@ -128,11 +127,11 @@ impl ArrayCaptures {
             for (what, image) in [("capture", Some(&capture)), ("white board", white.as_ref())] {
                 if let Some(image) = image {
                     if image.channels != channels {
-                        return Err(Error::invalid(
-                            &name,
+                        return Err(Error::mismatch(
+                            format!("{name} {what}"),
+                            format!("{} channels", image.channels),
                             format!(
-                                "{what} has {} channels but its sensor '{}' has {channels}: the rig does not match its images",
-                                image.channels,
+                                "{channels}, as its sensor '{}' (the rig does not match its images)",
                                 cam.sensor.name()
                             ),
                         ));
@@ -154,7 +153,7 @@ impl ArrayCaptures {
     /// Checks that all pictures share one size.
     pub fn from_cameras(cameras: Vec<CameraCapture>) -> Result<Self> {
         let Some(first) = cameras.first() else {
-            return Err(Error::invalid("captures", "no cameras"));
+            return Err(Error::mismatch("captures", "no cameras", "at least one"));
         };
         let (width, height) = (first.capture.width, first.capture.height);
         for cam in &cameras {
@@ -274,9 +273,10 @@ pub fn calibrate(
     saturation_level: f32,
 ) -> Result<(Vec<NormalisedView>, Vec<CameraCalibration>)> {
     if !(white_reflectance > 0.0 && white_reflectance <= 1.0) {
-        return Err(Error::invalid(
-            "white board",
-            format!("reflectance {white_reflectance} (expected in (0, 1])"),
+        return Err(Error::out_of_range(
+            "white board reflectance",
+            white_reflectance,
+            "in (0, 1]",
         ));
     }
     let channels: usize = captures.cameras.iter().map(|c| c.capture.channels).sum();
@@ -299,18 +299,16 @@ pub fn calibrate(
                 let mut variation = Vec::with_capacity(ch);
                 for c in 0..ch {
                     let Some((mean, cv)) = channel_statistics(white, c, saturation_level) else {
-                        return Err(Error::invalid(
-                            &name,
-                            format!(
-                                "white board channel {c} is saturated everywhere; expose it lower"
-                            ),
+                        return Err(Error::unusable(
+                            format!("{name} white board channel {c}"),
+                            "saturated everywhere; expose it lower",
                         ));
                     };
                     let response: f64 = sensing.row(first_row + c).iter().sum();
                     if !(mean > 0.0) || !(response > 0.0) {
-                        return Err(Error::invalid(
-                            &name,
-                            format!("white board channel {c} reads {mean} (expected > 0)"),
+                        return Err(Error::unusable(
+                            format!("{name} white board channel {c}"),
+                            format!("it reads {mean} (expected > 0)"),
                         ));
                     }
                     gain.push(mean / (white_reflectance * response));
@@ -320,10 +318,11 @@ pub fn calibrate(
             }
             (None, Some(exposure)) => ("exposure metadata", vec![exposure; ch], None),
             (None, None) => {
-                return Err(Error::invalid(
+                return Err(Error::mismatch(
                     &name,
-                    "no white board capture and no exposure metadata: give a white board \
-                     (rig `white` or --white) or the camera's `exposure` with --illuminant",
+                    "no white board capture and no exposure metadata",
+                    "a white board (rig `white` or --white) or the camera's `exposure` with \
+                     --illuminant",
                 ))
             }
         };

@@ -173,9 +173,10 @@ fn check_captures_follow_rig(rig: &Rig, captures: &ArrayCaptures) -> Result<()> 
     if follows {
         Ok(())
     } else {
-        Err(Error::invalid(
-            "reconstruction",
-            "the captures do not follow the rig's cameras (one per camera, row-major)",
+        Err(Error::mismatch(
+            "captures",
+            "a different set or order of cameras than the rig's",
+            "one capture per camera of the rig, in its order",
         ))
     }
 }
@@ -190,14 +191,13 @@ fn requested_views(rig: &Rig, views: Option<&[(usize, usize)]>) -> Result<Vec<us
             rig.cameras
                 .iter()
                 .position(|cam| (cam.row, cam.col) == (r, c))
-                .ok_or_else(|| {
-                    Error::invalid(
-                        "reconstruction",
-                        format!(
-                            "view r{r}c{c} is not in the {}x{} rig",
-                            rig.file.rows, rig.file.cols
-                        ),
-                    )
+                .ok_or_else(|| Error::NotFound {
+                    what: "view".into(),
+                    name: format!("r{r}c{c}"),
+                    available: format!(
+                        "the cameras of the {}x{} rig (not in the {}x{} rig)",
+                        rig.file.rows, rig.file.cols, rig.file.rows, rig.file.cols
+                    ),
                 })
         })
         .collect()

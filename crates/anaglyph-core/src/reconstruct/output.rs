@@ -73,9 +73,10 @@ pub fn write_light_field(
     let (w, h) = (field.width, field.height);
     for &(x, y) in &options.probes {
         if x >= w || y >= h {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "probe",
-                format!("pixel ({x}, {y}) lies outside the {w}x{h} image"),
+                format!("pixel ({x}, {y})"),
+                format!("a pixel inside the {w}x{h} image"),
             ));
         }
     }
@@ -100,7 +101,11 @@ pub fn write_light_field(
             .cameras
             .iter()
             .find(|c| (c.row, c.col) == (view.row, view.col))
-            .ok_or_else(|| Error::invalid("output", format!("view {name} not in the rig")))?;
+            .ok_or_else(|| Error::NotFound {
+                what: "camera of the view".into(),
+                name: name.clone(),
+                available: "the rig's cameras".into(),
+            })?;
         files.extend(write_cube(dir, &name, field, view)?);
         files.extend(write_disparity(dir, &name, field, view, max_disparity)?);
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
@@ -243,8 +248,7 @@ fn write_manifest(
             .map(|f| f.strip_prefix(dir).unwrap_or(f).display().to_string())
             .collect(),
     };
-    let json = serde_json::to_string_pretty(&manifest)
-        .map_err(|e| Error::invalid("manifest", e.to_string()))?;
+    let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::output("manifest", e))?;
     write_atomically(&manifest_path, |out| out.write_all(json.as_bytes()))?;
     Ok(manifest_path)
 }

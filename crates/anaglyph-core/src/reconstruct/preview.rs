@@ -120,7 +120,7 @@ pub fn pseudo_colour(
         let curve = &curves[k.min(channels - 1)];
         let total: f64 = curve.iter().map(|v| v.max(0.0)).sum();
         if !(total > 0.0) {
-            return Err(Error::invalid(
+            return Err(Error::unusable(
                 format!("sensor '{}'", sensor.name()),
                 "a channel has no response over the reconstruction bands",
             ));
@@ -148,7 +148,7 @@ pub fn srgb_preview(
         .collect::<Result<_>>()?;
     let white_y: f64 = d65.iter().zip(&cmf[1]).map(|(e, y)| e * y).sum();
     if !(white_y > 0.0) {
-        return Err(Error::invalid(
+        return Err(Error::unusable(
             "sRGB preview",
             "no luminance over the bands",
         ));

@@ -31,7 +31,11 @@ pub struct Probe {
 /// Writes the chart of `probes` over band centres `centres` to `path` (SVG).
 pub fn plot_probe(path: &Path, title: &str, centres: &[f64], probes: &[Probe]) -> Result<()> {
     let (Some(&lo), Some(&hi)) = (centres.first(), centres.last()) else {
-        return Err(Error::invalid("probe plot", "no bands"));
+        return Err(Error::mismatch(
+            "probe plot",
+            "no bands",
+            "at least one band",
+        ));
     };
     let peak = probes
         .iter()
@@ -39,7 +43,7 @@ pub fn plot_probe(path: &Path, title: &str, centres: &[f64], probes: &[Probe]) -
         .filter(|v| v.is_finite())
         .fold(0.0f64, |a, &b| a.max(b))
         .max(0.1);
-    let plot_err = |e: String| Error::invalid("probe plot", e);
+    let plot_err = |e: String| Error::output("probe plot", e);
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (900, 540)).into_drawing_area();
@@ -120,13 +124,14 @@ pub fn plot_series(
         (a.min(y), b.max(y))
     });
     if !(x_hi > x_lo) || !(y_hi >= y_lo) {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "chart",
-            "needs at least two distinct finite x values",
+            "fewer than two distinct finite x values",
+            "at least two",
         ));
     }
     let pad = ((y_hi - y_lo) * 0.08).max(0.5);
-    let plot_err = |e: String| Error::invalid("chart", e);
+    let plot_err = |e: String| Error::output("chart", e);
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (900, 540)).into_drawing_area();

@@ -31,14 +31,14 @@ pub(super) fn rectify_array(
         return Ok(None);
     }
     if !without.is_empty() {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "rectification",
             format!(
-                "cameras {} have a calibration but {} have none: give every camera one (or \
-                 none, for captures that are already rectified)",
+                "cameras {} have a calibration but {} have none",
                 camera_names(&with),
                 camera_names(&without)
             ),
+            "a calibration for every camera, or none for captures already rectified",
         ));
     }
     let clock = std::time::Instant::now();

@@ -89,17 +89,21 @@ impl CameraModel {
     /// `rotation_matrix` (`R`) or a Rodrigues `rvec` (`rotation_vector`), and
     /// `translation_vector` (`T`, `t`, `tvec`); `image_width` / `image_height` when present.
     pub fn from_file_storage(storage: &FileStorage, context: &str) -> Result<Self> {
-        let invalid = |message: String| Error::invalid(context, message);
+        let bad = |field: &str, found: String, expected: &str| {
+            Error::bad_field(context, field, found, expected)
+        };
         let (name, rows, cols, k) = matrix_entry(storage, &["camera_matrix", "cameraMatrix", "K"])
-            .ok_or_else(|| invalid("no camera_matrix (K)".into()))?;
+            .ok_or_else(|| bad("camera_matrix (K)", "absent".into(), "a 3x3 matrix"))?;
         if (rows, cols) != (3, 3) {
-            return Err(invalid(format!("{name} is {rows}x{cols} (expected 3x3)")));
+            return Err(bad(name, format!("{rows}x{cols}"), "3x3"));
         }
         let camera_matrix = [[k[0], k[1], k[2]], [k[3], k[4], k[5]], [k[6], k[7], k[8]]];
         if !(k[0] > 0.0 && k[4] > 0.0) || k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
-            return Err(invalid(format!(
-                "{name} = {k:?} is not [fx s cx; 0 fy cy; 0 0 1] with fx, fy > 0"
-            )));
+            return Err(bad(
+                name,
+                format!("{k:?}"),
+                "[fx s cx; 0 fy cy; 0 0 1] with fx, fy > 0",
+            ));
         }
         let distortion = match matrix_entry(
             storage,
@@ -109,10 +113,11 @@ impl CameraModel {
             Some((name, _, _, d)) => match d.len() {
                 0 | 4 | 5 | 8 => d.to_vec(),
                 n => {
-                    return Err(invalid(format!(
-                        "{name} has {n} coefficients; the 4, 5 and 8 coefficient models are \
-                         supported (thin-prism and tilted models are not)"
-                    )))
+                    return Err(bad(
+                        name,
+                        format!("{n} coefficients"),
+                        "4, 5 or 8 (thin-prism and tilted models are not supported)",
+                    ))
                 }
             },
         };
@@ -120,25 +125,31 @@ impl CameraModel {
             Some((_, 3, 3, r)) => [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]],
             Some((_, 3, 1, r)) | Some((_, 1, 3, r)) => rodrigues([r[0], r[1], r[2]]),
             Some((name, rows, cols, _)) => {
-                return Err(invalid(format!(
-                    "{name} is {rows}x{cols} (expected a 3x3 matrix or a 3-vector)"
-                )))
+                return Err(bad(
+                    name,
+                    format!("{rows}x{cols}"),
+                    "a 3x3 matrix or a 3-vector",
+                ))
             }
             None => match matrix_entry(storage, &["rvec", "rotation_vector"]) {
                 Some((_, _, _, r)) if r.len() == 3 => rodrigues([r[0], r[1], r[2]]),
                 Some((name, rows, cols, _)) => {
-                    return Err(invalid(format!("{name} is {rows}x{cols} (expected 3x1)")))
+                    return Err(bad(name, format!("{rows}x{cols}"), "3x1"))
                 }
-                None => return Err(invalid("no rotation_matrix (R) or rvec".into())),
+                None => {
+                    return Err(bad(
+                        "rotation_matrix (R) or rvec",
+                        "absent".into(),
+                        "a 3x3 matrix or a 3-vector",
+                    ))
+                }
             },
         };
-        check_rotation(&rotation).map_err(invalid)?;
+        check_rotation(&rotation).map_err(|found| bad("rotation", found, "a rotation matrix"))?;
         let translation = match matrix_entry(storage, &["translation_vector", "T", "t", "tvec"]) {
             Some((_, _, _, t)) if t.len() == 3 => [t[0], t[1], t[2]],
-            Some((name, rows, cols, _)) => {
-                return Err(invalid(format!("{name} is {rows}x{cols} (expected 3x1)")))
-            }
-            None => return Err(invalid("no translation_vector (T)".into())),
+            Some((name, rows, cols, _)) => return Err(bad(name, format!("{rows}x{cols}"), "3x1")),
+            None => return Err(bad("translation_vector (T)", "absent".into(), "3x1")),
         };
         let size = |names: &[&str]| {
             number_entry(storage, names)
@@ -255,9 +266,7 @@ fn check_rotation(r: &Matrix3) -> std::result::Result<(), String> {
         - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
         + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
     if !(worst < ROTATION_TOLERANCE) || !(det > 0.0) {
-        return Err(format!(
-            "the rotation is not a rotation matrix (|RᵀR − I| = {worst:.2e}, det = {det:.4})"
-        ));
+        return Err(format!("|RᵀR − I| = {worst:.2e}, det = {det:.4}"));
     }
     Ok(())
 }
@@ -298,6 +307,15 @@ mod tests {
         let d = p - camera.centre;
         let (x, y) = back.project_direction([d.x, d.y, d.z]).unwrap();
         assert!((x - (u - 0.5)).abs() < 1e-9 && (y - (v - 0.5)).abs() < 1e-9);
+
+        let mut broken = storage.clone();
+        broken.remove("translation_vector");
+        let err = CameraModel::from_file_storage(&broken, "cam.json").unwrap_err();
+        assert!(
+            matches!(&err, Error::BadField { field, found, .. }
+                if field == "translation_vector (T)" && found == "absent"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -310,7 +328,7 @@ mod tests {
         scaled[0][0] = 1.01;
         assert!(check_rotation(&scaled)
             .unwrap_err()
-            .contains("not a rotation"));
+            .contains("|RᵀR − I| = 2.01e-2"));
         let mut mirrored = identity();
         mirrored[2][2] = -1.0;
         assert!(check_rotation(&mirrored).unwrap_err().contains("det = -1"));

@@ -40,12 +40,14 @@ pub fn read_file_storage(path: &Path) -> Result<FileStorage> {
     let context = path.display().to_string();
     match text.trim_start().chars().next() {
         Some('{') => parse_json(&text, &context),
-        Some('<') => Err(Error::invalid(
-            context,
-            "XML FileStorage is not read: save the calibration as .yml or .json",
-        )),
+        Some('<') => Err(Error::UnsupportedFormat {
+            file: path.into(),
+            what: "FileStorage layout".into(),
+            found: "XML".into(),
+            supported: "YAML (.yml, .yaml) and JSON (.json)".into(),
+        }),
         Some(_) => parse_yaml(&text, &context),
-        None => Err(Error::invalid(context, "empty calibration file")),
+        None => Err(Error::decode(path, "empty calibration file")),
     }
 }
 
@@ -58,7 +60,7 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
     })?;
     let object = value
         .as_object()
-        .ok_or_else(|| Error::invalid(context, "expected a JSON object at the top level"))?;
+        .ok_or_else(|| Error::decode(context, "expected a JSON object at the top level"))?;
     let mut out = FileStorage::new();
     for (name, entry) in object {
         let stored = match entry {
@@ -71,17 +73,29 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
                         .and_then(|v| v.as_u64())
                         .map(|v| v as usize)
                         .ok_or_else(|| {
-                            Error::invalid(context, format!("matrix '{name}' has no '{key}'"))
+                            Error::bad_field(
+                                context,
+                                format!("matrix '{name}'"),
+                                format!("without '{key}'"),
+                                "rows, cols and data",
+                            )
                         })
                 };
                 let data = m
                     .get("data")
                     .and_then(|d| d.as_array())
-                    .ok_or_else(|| Error::invalid(context, format!("matrix '{name}' has no data")))?
+                    .ok_or_else(|| {
+                        Error::bad_field(
+                            context,
+                            format!("matrix '{name}'"),
+                            "without data",
+                            "rows, cols and data",
+                        )
+                    })?
                     .iter()
                     .map(|v| {
                         v.as_f64().ok_or_else(|| {
-                            Error::invalid(context, format!("matrix '{name}': {v} is not a number"))
+                            Error::bad_field(context, format!("matrix '{name}'"), v, "numbers")
                         })
                     })
                     .collect::<Result<Vec<f64>>>()?;
@@ -105,19 +119,18 @@ fn matrix(
     context: &str,
 ) -> Result<StoredValue> {
     if data.len() != rows * cols {
-        return Err(Error::invalid(
+        return Err(Error::bad_field(
             context,
-            format!(
-                "matrix '{name}' is {rows}x{cols} but holds {} numbers",
-                data.len()
-            ),
+            format!("matrix '{name}' ({rows}x{cols})"),
+            format!("{} numbers", data.len()),
+            format!("{} numbers", rows * cols),
         ));
     }
     if let Some(bad) = data.iter().find(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            context,
-            format!("matrix '{name}' holds {bad}"),
-        ));
+        return Err(Error::NonFinite {
+            what: format!("{context}: an entry of matrix '{name}'"),
+            value: *bad,
+        });
     }
     Ok(StoredValue::Matrix { rows, cols, data })
 }
@@ -280,8 +293,20 @@ avg_reprojection_error: 0.21
     #[test]
     fn malformed_files_give_the_line_and_the_reason() {
         let short = YAML.replace("0., 0., 1. ]", "0., 1. ]");
-        let err = parse_yaml(&short, "cam.yml").unwrap_err().to_string();
-        assert!(err.contains("3x3 but holds 8"), "{err}");
+        let err = parse_yaml(&short, "cam.yml").unwrap_err();
+        assert!(
+            matches!(&err, Error::BadField { found, expected, .. }
+                if found == "8 numbers" && expected == "9 numbers"),
+            "{err}"
+        );
+        let xml = tempfile::tempdir().unwrap();
+        let path = xml.path().join("cam.xml");
+        std::fs::write(&path, "<?xml version=\"1.0\"?>\n<opencv_storage/>").unwrap();
+        let err = read_file_storage(&path).unwrap_err();
+        assert!(
+            matches!(&err, Error::UnsupportedFormat { found, .. } if found == "XML"),
+            "{err}"
+        );
         let open = YAML.replace("0., 0., 1. ]", "0., 0., 1.");
         let err = parse_yaml(&open, "cam.yml").unwrap_err().to_string();
         assert!(err.contains("not closed"), "{err}");

@@ -148,17 +148,19 @@ impl Rectification {
         height: usize,
     ) -> Result<Self> {
         if cameras.is_empty() || width < 2 || height < 2 {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "rectification",
                 format!("{} cameras of {width}x{height} px", cameras.len()),
+                "at least one camera of at least 2x2 px",
             ));
         }
         for (r, c, model) in &cameras {
             if let Some((w, h)) = model.image_size {
                 if (w, h) != (width, height) {
-                    return Err(Error::invalid(
+                    return Err(Error::mismatch(
                         format!("calibration of camera r{r}c{c}"),
-                        format!("made for {w}x{h} px images but the captures are {width}x{height}"),
+                        format!("made for {w}x{h} px images"),
+                        format!("the captures' {width}x{height}"),
                     ));
                 }
             }
@@ -195,7 +197,7 @@ impl Rectification {
         let z_axis = cross(x_axis, y_axis);
         let cosine = dot(z_axis, mean_axis(2));
         if !(cosine > MIN_AXIS_COSINE) {
-            return Err(Error::invalid(
+            return Err(Error::unusable(
                 "rectification",
                 format!(
                     "the cameras look {:.0}° away from the normal of their grid: the rig's rows \
@@ -289,10 +291,11 @@ impl Rectification {
         saturation: f32,
     ) -> Result<LinearImage> {
         let (w, h, ch) = (self.width, self.height, image.channels);
-        let cam = self
-            .cameras
-            .get(camera)
-            .ok_or_else(|| Error::invalid("rectification", format!("no camera {camera}")))?;
+        let cam = self.cameras.get(camera).ok_or_else(|| Error::NotFound {
+            what: "camera index".into(),
+            name: camera.to_string(),
+            available: format!("0 to {}", self.cameras.len().saturating_sub(1)),
+        })?;
         if (image.width, image.height) != (w, h) {
             return Err(Error::Shape {
                 op: format!("rectifying camera r{}c{}", cam.row, cam.col),

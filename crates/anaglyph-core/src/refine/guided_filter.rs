@@ -49,9 +49,10 @@ pub fn guided_filter(
     let (guide, input) = (guide.data.as_slice(), input.data.as_slice());
     let n = width * height;
     if channels == 0 || channels > MAX_GUIDE_CHANNELS {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "guided filter",
-            format!("{channels} guide channels (expected 1 to {MAX_GUIDE_CHANNELS})"),
+            format!("{channels} guide channels"),
+            format!("1 to {MAX_GUIDE_CHANNELS}"),
         ));
     }
     if bands == 0 || guide.len() != n * channels || input.len() != n * bands {
@@ -63,19 +64,18 @@ pub fn guided_filter(
     }
     if let Some(weights) = weights {
         if weights.len() != n || weights.iter().any(|w| !(*w >= 0.0) || !w.is_finite()) {
-            return Err(Error::invalid(
-                "guided filter",
-                format!(
-                    "{} weights for {n} pixels, each finite and >= 0",
-                    weights.len()
-                ),
+            return Err(Error::mismatch(
+                "guided filter weights",
+                format!("{} weights", weights.len()),
+                format!("{n}, one per pixel, each finite and >= 0"),
             ));
         }
     }
     if !(filter.epsilon > 0.0) || !filter.epsilon.is_finite() {
-        return Err(Error::invalid(
-            "guided filter",
-            format!("epsilon {} (expected a finite value > 0)", filter.epsilon),
+        return Err(Error::out_of_range(
+            "guided filter epsilon",
+            filter.epsilon,
+            "a finite value > 0",
         ));
     }
     if n == 0 {

@@ -93,12 +93,10 @@ pub fn refine_view(
     if white_response.len() != view.channels
         || white_response.iter().any(|r| !(*r > 0.0) || !r.is_finite())
     {
-        return Err(Error::invalid(
-            "refinement",
-            format!(
-                "camera r{}c{}: white responses {white_response:?} for {} channels",
-                view.row, view.col, view.channels
-            ),
+        return Err(Error::mismatch(
+            format!("white responses of camera r{}c{}", view.row, view.col),
+            format!("{white_response:?}"),
+            format!("{} positive, finite values", view.channels),
         ));
     }
     let guide: Vec<f32> = view

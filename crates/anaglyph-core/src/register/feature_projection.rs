@@ -38,18 +38,20 @@ impl FeatureProjection {
         let c = maps.first().map_or(0, |m| m.channels);
         let pixels = maps.first().map_or(0, |m| m.width * m.height);
         if k == 0 || c == 0 || pixels == 0 || dims == 0 || dims > k * c {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "feature projection",
                 format!("{k} maps of {c} channels and {pixels} pixels onto {dims} dimensions"),
+                "at least one non-empty map, and at most as many dimensions as channels",
             ));
         }
         if maps
             .iter()
             .any(|m| m.channels != c || m.width * m.height != pixels)
         {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "feature projection",
-                "the maps differ in size or width",
+                "maps of different sizes or widths",
+                "maps of one size and width",
             ));
         }
         let total = k * c;
@@ -145,13 +147,10 @@ impl FeatureProjection {
         images: &[&GreyImage],
     ) -> Result<FeatureMap> {
         if images.len() != self.images() {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "feature projection",
-                format!(
-                    "{} images for a projection of {}",
-                    images.len(),
-                    self.images()
-                ),
+                format!("{} images", images.len()),
+                format!("{}, as the projection was fitted on", self.images()),
             ));
         }
         self.merge(images.iter().map(|image| tower_features(network, image)))
@@ -161,9 +160,10 @@ impl FeatureProjection {
     /// order the projection was fitted with).
     pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
         if maps.len() != self.images() {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "feature projection",
-                format!("{} maps for a projection of {}", maps.len(), self.images()),
+                format!("{} maps", maps.len()),
+                format!("{}, as the projection was fitted on", self.images()),
             ));
         }
         self.merge(maps.into_iter())
@@ -183,14 +183,16 @@ impl FeatureProjection {
                 || map.channels != self.channels
                 || (map.width, map.height) != (out.width, out.height)
             {
-                return Err(Error::invalid(
+                return Err(Error::mismatch(
                     "feature projection",
-                    "the features do not match the projection",
+                    "features of another size or depth",
+                    "the features the projection was fitted on",
                 ));
             }
             self.accumulate(j, &map, &mut out.data);
         }
-        let mut merged = merged.ok_or_else(|| Error::invalid("feature projection", "no images"))?;
+        let mut merged = merged
+            .ok_or_else(|| Error::mismatch("feature projection", "no images", "at least one"))?;
         merged.data.par_chunks_mut(self.dims).for_each(|f| {
             let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
             if norm > 0.0 {

@@ -184,7 +184,7 @@ pub fn register_views(
 
 fn validate(images: &[GridImage], geometry: &ArrayGeometry, max_disp: usize) -> Result<()> {
     let Some(first) = images.first() else {
-        return Err(Error::invalid("registration", "no views"));
+        return Err(Error::mismatch("registration", "no views", "at least one"));
     };
     let (w, h) = (first.image.width, first.image.height);
     for view in images {
@@ -196,28 +196,29 @@ fn validate(images: &[GridImage], geometry: &ArrayGeometry, max_disp: usize) -> 
             });
         }
         if view.row >= geometry.rows || view.col >= geometry.cols {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "registration",
+                format!("a view at r{}c{}", view.row, view.col),
                 format!(
-                    "view r{}c{} lies outside the {} x {} array",
-                    view.row, view.col, geometry.rows, geometry.cols
+                    "views inside the {} x {} array",
+                    geometry.rows, geometry.cols
                 ),
             ));
         }
     }
     if !(geometry.baseline_ratio.is_finite() && geometry.baseline_ratio > 0.0) {
-        return Err(Error::invalid(
-            "registration",
-            format!("baseline ratio {} (expected > 0)", geometry.baseline_ratio),
+        return Err(Error::out_of_range(
+            "registration: baseline ratio",
+            geometry.baseline_ratio,
+            "finite and > 0",
         ));
     }
     let longest = (max_disp as f64 * geometry.baseline_ratio.max(1.0)).ceil() as usize;
     if max_disp < 2 || longest >= w.min(h) {
-        return Err(Error::invalid(
-            "registration",
-            format!(
-                "{max_disp} disparities ({longest} px along the longer baseline) do not fit a {w}x{h} image"
-            ),
+        return Err(Error::mismatch(
+            "registration: search range",
+            format!("{max_disp} disparities ({longest} px along the longer baseline)"),
+            format!("at least 2, fitting a {w}x{h} image"),
         ));
     }
     Ok(())

@@ -81,7 +81,7 @@ pub fn estimate_search_range(
 ) -> Result<SearchRange> {
     let clock = Instant::now();
     let Some(first) = images.first() else {
-        return Err(Error::invalid("search range", "no views"));
+        return Err(Error::mismatch("search range", "no views", "at least one"));
     };
     let (w, h) = (first.image.width, first.image.height);
     let span = geometry.cols.saturating_sub(1).max(1);
@@ -94,9 +94,10 @@ pub fn estimate_search_range(
     let coarse_w = w / factor;
     let coarse_max_disp = (coarse_w / span).clamp(4, MAX_COARSE_DISPARITY);
     if coarse_w < 16 || h / factor < 16 {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             "search range",
-            format!("{w}x{h} px is too small to estimate a range; give --max-disp"),
+            format!("{w}x{h} px, too small to estimate a range"),
+            "a larger image, or a search range given (--max-disp)",
         ));
     }
     let registration = register_views(
@@ -116,9 +117,9 @@ pub fn estimate_search_range(
         .filter(|d| d.is_finite())
         .collect();
     if values.is_empty() {
-        return Err(Error::invalid(
-            "search range",
-            "the coarse registration found no disparity; give --max-disp",
+        return Err(Error::unusable(
+            "the coarse registration",
+            "it found no disparity; give the search range (--max-disp)",
         ));
     }
     values.sort_by(f32::total_cmp);

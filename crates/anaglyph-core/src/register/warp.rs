@@ -209,7 +209,11 @@ pub fn gather_measurements(
     kernel: WarpKernel,
 ) -> Result<Gathered> {
     let Some(me) = views.get(reference) else {
-        return Err(Error::invalid("warping", format!("no view {reference}")));
+        return Err(Error::NotFound {
+            what: "view to warp to".into(),
+            name: reference.to_string(),
+            available: format!("views 0 to {}", views.len().saturating_sub(1)),
+        });
     };
     check_sizes(views, disparities, me)?;
     let (w, h) = (me.width, me.height);

@@ -32,7 +32,7 @@ pub fn plot_effective_responses(
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (1000, 600)).into_drawing_area();
-        let plot_err = |e: String| Error::invalid("response plot", e);
+        let plot_err = |e: String| Error::output("response plot", e);
         root.fill(&WHITE).map_err(|e| plot_err(e.to_string()))?;
         let grid = &responses.grid;
         let peak = responses

@@ -182,8 +182,7 @@ impl RigFile {
 
     /// TOML text with a comment header.
     pub fn to_toml_string(&self) -> Result<String> {
-        let body =
-            toml::to_string_pretty(self).map_err(|e| Error::invalid("rig file", e.to_string()))?;
+        let body = toml::to_string_pretty(self).map_err(|e| Error::output("rig file", e))?;
         Ok(format!(
             "# anaglyph rig file: geometry, curves and reconstruction grid of a filtered camera array.\n\
              # Curves are 'builtin:<name>' or CSV paths (wavelength_nm,...) relative to this file.\n{body}"
@@ -197,12 +196,20 @@ impl RigFile {
     }
 
     fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(Error::invalid(format!("rig '{}'", self.name), m));
+        let rig = format!("rig '{}'", self.name);
+        let range = |setting: &str, value: f64, expected: &str| {
+            Err(Error::out_of_range(
+                format!("{rig}: {setting}"),
+                value,
+                expected,
+            ))
+        };
         if self.rows == 0 || self.cols == 0 || self.rows > MAX_RIG_SIDE || self.cols > MAX_RIG_SIDE
         {
-            return bad(format!(
-                "{} x {} cameras (expected 1 to {MAX_RIG_SIDE} per side)",
-                self.rows, self.cols
+            return Err(Error::mismatch(
+                &rig,
+                format!("{} x {} cameras", self.rows, self.cols),
+                format!("1 to {MAX_RIG_SIDE} per side"),
             ));
         }
         let b = self.baseline_mm;
@@ -211,48 +218,56 @@ impl RigFile {
             && b.horizontal > 0.0
             && b.vertical > 0.0)
         {
-            return bad(format!(
-                "baseline {} x {} mm (expected positive)",
-                b.horizontal, b.vertical
+            return Err(Error::mismatch(
+                &rig,
+                format!("baseline {} x {} mm", b.horizontal, b.vertical),
+                "positive, finite baselines",
             ));
         }
         if !(self.focal_length_px.is_finite() && self.focal_length_px > 0.0) {
-            return bad(format!(
-                "focal length {} px (expected positive)",
-                self.focal_length_px
-            ));
+            return range(
+                "focal length (px)",
+                self.focal_length_px,
+                "positive and finite",
+            );
         }
         let lambda = self.reconstruction.lambda;
         if !(lambda.is_finite() && lambda >= 0.0) {
-            return bad(format!("lambda {lambda} (expected finite and >= 0)"));
+            return range("lambda", lambda, "finite and >= 0");
         }
         let mut seen = vec![false; self.rows * self.cols];
         for cam in &self.cameras {
             if cam.row >= self.rows || cam.col >= self.cols {
-                return bad(format!(
-                    "camera at row {} col {} lies outside the {} x {} grid",
-                    cam.row, cam.col, self.rows, self.cols
+                return Err(Error::mismatch(
+                    &rig,
+                    format!("a camera at row {} col {}", cam.row, cam.col),
+                    format!("cameras inside the {} x {} grid", self.rows, self.cols),
                 ));
             }
             if let Some(e) = cam.exposure {
                 if !(e.is_finite() && e > 0.0) {
-                    return bad(format!(
-                        "camera r{}c{}: exposure {e} (expected > 0)",
-                        cam.row, cam.col
-                    ));
+                    return range(
+                        &format!("camera r{}c{} exposure", cam.row, cam.col),
+                        e,
+                        "positive and finite",
+                    );
                 }
             }
             let i = cam.row * self.cols + cam.col;
             if seen[i] {
-                return bad(format!("two cameras at row {} col {}", cam.row, cam.col));
+                return Err(Error::mismatch(
+                    &rig,
+                    format!("two cameras at row {} col {}", cam.row, cam.col),
+                    "one camera per grid position",
+                ));
             }
             seen[i] = true;
         }
         if let Some(i) = seen.iter().position(|s| !s) {
-            return bad(format!(
-                "no camera at row {} col {}",
-                i / self.cols,
-                i % self.cols
+            return Err(Error::mismatch(
+                &rig,
+                format!("no camera at row {} col {}", i / self.cols, i % self.cols),
+                "one camera per grid position",
             ));
         }
         Ok(())
@@ -297,22 +312,18 @@ impl Rig {
                 None => rig_sensor.clone(),
             };
             if !(sensor.channel_count() == 1 || sensor.channel_count() == 3) {
-                return Err(Error::invalid(
+                return Err(Error::mismatch(
                     format!("sensor '{}'", sensor.name()),
-                    format!(
-                        "{} channels (expected 1 for monochrome or 3 for RGB)",
-                        sensor.channel_count()
-                    ),
+                    format!("{} channels", sensor.channel_count()),
+                    "1 for monochrome or 3 for RGB",
                 ));
             }
             let filter = resolve_curve(&e.filter, &base_dir)?;
             if filter.channel_count() != 1 {
-                return Err(Error::invalid(
+                return Err(Error::mismatch(
                     format!("filter '{}'", filter.name()),
-                    format!(
-                        "{} channels (expected 1 transmission column)",
-                        filter.channel_count()
-                    ),
+                    format!("{} channels", filter.channel_count()),
+                    "1 transmission column",
                 ));
             }
             let (lo, hi) = sensor.domain();
@@ -440,10 +451,12 @@ mod tests {
 
         let mut outside = Rig::paper_rig_file(&EIGHT);
         outside.cameras[0].row = 7;
-        assert!(Rig::from_file(outside, ".".into())
-            .unwrap_err()
-            .to_string()
-            .contains("outside"));
+        let err = Rig::from_file(outside, ".".into()).unwrap_err();
+        assert!(
+            matches!(&err, Error::Mismatch { found, .. } if found.contains("row 7")),
+            "{err}"
+        );
+        assert!(err.to_string().contains("inside the 2 x 4 grid"), "{err}");
 
         let mut unknown = Rig::paper_rig_file(&EIGHT);
         unknown.cameras[0].filter = "builtin:gel_nothing".into();

@@ -86,9 +86,10 @@ impl EffectiveResponses {
             hi = hi.min(b);
         }
         if cameras.is_empty() || !(hi > lo) {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "rig",
-                "the sensor curves share no common wavelength range",
+                "sensor curves without a common wavelength range",
+                "sensors whose curves overlap",
             ));
         }
         let count = ((hi - lo) / FINE_STEP_NM).round().max(1.0) as usize + 1;
@@ -169,10 +170,10 @@ impl SensingMatrix {
             });
         }
         if let Some(v) = values.iter().find(|v| !v.is_finite()) {
-            return Err(Error::invalid(
-                "sensing matrix",
-                format!("holds {v} (NaN/Inf not allowed)"),
-            ));
+            return Err(Error::NonFinite {
+                what: "a value of the sensing matrix".into(),
+                value: *v,
+            });
         }
         Ok(SensingMatrix {
             values,
@@ -263,12 +264,9 @@ impl SensingMatrix {
         for r in 0..rows {
             let peak = camera_peak[responses.camera_of_row[r]];
             if peak <= 0.0 {
-                return Err(Error::invalid(
-                    "sensing matrix",
-                    format!(
-                        "camera of row '{}' sees no light at all",
-                        responses.labels[r]
-                    ),
+                return Err(Error::unusable(
+                    format!("the camera of row '{}'", responses.labels[r]),
+                    "it sees no light at all (sensor × filter × illuminant is zero)",
                 ));
             }
             row_scale[r] = peak;

@@ -154,19 +154,19 @@ impl SceneFile {
 
     /// A preset by name.
     pub fn preset(name: &str) -> Result<Self> {
-        let (_, text) = PRESETS.iter().find(|(k, _)| *k == name).ok_or_else(|| {
-            Error::invalid(
-                "scene",
-                format!(
-                    "no preset '{name}' (available: {})",
-                    PRESETS
+        let (_, text) =
+            PRESETS
+                .iter()
+                .find(|(k, _)| *k == name)
+                .ok_or_else(|| Error::NotFound {
+                    what: "scene preset".into(),
+                    name: name.to_string(),
+                    available: PRESETS
                         .iter()
                         .map(|(k, _)| *k)
                         .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            )
-        })?;
+                        .join(", "),
+                })?;
         Self::from_toml_str(text, &format!("preset '{name}'"))
     }
 
@@ -189,7 +189,7 @@ impl SceneFile {
 
     /// TOML text.
     pub fn to_toml_string(&self) -> Result<String> {
-        toml::to_string_pretty(self).map_err(|e| Error::invalid("scene file", e.to_string()))
+        toml::to_string_pretty(self).map_err(|e| Error::output("scene file", e))
     }
 }
 
@@ -197,9 +197,10 @@ fn finite_positive(what: &str, v: f64, ctx: &str) -> Result<f64> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(Error::invalid(
-            ctx.to_string(),
-            format!("{what} {v} (expected finite and > 0)"),
+        Err(Error::out_of_range(
+            format!("{ctx}: {what}"),
+            v,
+            "finite and > 0",
         ))
     }
 }
@@ -208,10 +209,14 @@ fn to_vec3(a: [f64; 3], ctx: &str) -> Result<Vec3> {
     if a.iter().all(|v| v.is_finite()) {
         Ok(Vec3::new(a[0], a[1], a[2]))
     } else {
-        Err(Error::invalid(
-            ctx.to_string(),
-            format!("centre {a:?} is not finite"),
-        ))
+        Err(Error::NonFinite {
+            what: format!("{ctx}: centre_mm {a:?}"),
+            value: a
+                .iter()
+                .copied()
+                .find(|v| !v.is_finite())
+                .unwrap_or(f64::NAN),
+        })
     }
 }
 
@@ -219,9 +224,10 @@ fn linear_colour(srgb: [f64; 3], ctx: &str) -> Result<[f64; 3]> {
     if srgb.iter().all(|v| (0.0..=1.0).contains(v)) {
         Ok(srgb.map(super::srgb_to_linear))
     } else {
-        Err(Error::invalid(
-            ctx.to_string(),
-            format!("sRGB colour {srgb:?} (expected values in [0, 1])"),
+        Err(Error::mismatch(
+            format!("{ctx}: srgb"),
+            format!("{srgb:?}"),
+            "values in [0, 1]",
         ))
     }
 }
@@ -242,14 +248,15 @@ impl Resolver<'_> {
         } else {
             let path = self.base.join(name);
             if !path.is_file() {
-                return Err(Error::invalid(
-                    ctx.to_string(),
-                    format!(
-                        "unknown texture '{name}' (not built in: {}; no file {})",
+                return Err(Error::NotFound {
+                    what: format!("{ctx}: texture"),
+                    name: name.to_string(),
+                    available: format!(
+                        "built in: {}; no file {}",
                         super::TEXTURE_NAMES.join(", "),
                         path.display()
                     ),
-                ));
+                });
             }
             Texture::load(&path)?
         };
@@ -262,9 +269,10 @@ impl Resolver<'_> {
 /// A measured spectrum "set/sample" on [`UPSAMPLING_SHAPE`].
 fn measured_spectrum(reference: &str, ctx: &str) -> Result<Vec<f64>> {
     let (set, sample) = reference.split_once('/').ok_or_else(|| {
-        Error::invalid(
-            ctx.to_string(),
-            format!("reflectance '{reference}' (expected 'set/sample')"),
+        Error::mismatch(
+            format!("{ctx}: reflectance"),
+            format!("'{reference}'"),
+            "'set/sample'",
         )
     })?;
     let curve = builtin::reflectances(set)?;
@@ -281,9 +289,10 @@ fn material(spec: &MaterialSpec, resolver: &mut Resolver, ctx: &str) -> Result<M
     ];
     let count = kinds.iter().filter(|k| **k).count();
     if count > 1 || (count == 0 && spec.srgb.is_none()) {
-        return Err(Error::invalid(
-            ctx.to_string(),
-            "a material needs exactly one of texture, pattern, reflectance, or an srgb colour",
+        return Err(Error::mismatch(
+            format!("{ctx}: material"),
+            format!("{count} of texture, pattern and reflectance"),
+            "exactly one of texture, pattern, reflectance, or an srgb colour",
         ));
     }
     if let Some(name) = &spec.texture {
@@ -320,10 +329,11 @@ fn material(spec: &MaterialSpec, resolver: &mut Resolver, ctx: &str) -> Result<M
             angle_deg: angle,
         },
         Some(other) => {
-            return Err(Error::invalid(
-                ctx.to_string(),
-                format!("pattern '{other}' (expected stripes, checker, noise or grating)"),
-            ))
+            return Err(Error::NotFound {
+                what: format!("{ctx}: pattern"),
+                name: other.to_string(),
+                available: "stripes, checker, noise, grating".into(),
+            })
         }
     };
     Ok(Material::Pattern {
@@ -346,17 +356,21 @@ fn resolve_object(
         spec.chart.is_some(),
     ];
     if shapes.iter().filter(|&&s| s).count() != 1 {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             ctx,
-            "needs exactly one of rectangle, sphere, box or chart",
+            format!("{} shapes", shapes.iter().filter(|&&s| s).count()),
+            "exactly one of rectangle, sphere, box or chart",
         ));
     }
     let material = object_material(spec, resolver, ctx)?;
     let (shape, nearest_z) = object_shape(spec, ctx)?;
     if !(nearest_z >= MIN_DEPTH_MM) {
-        return Err(Error::invalid(
+        return Err(Error::mismatch(
             ctx,
-            format!("reaches z = {nearest_z:.1} mm: objects must lie at least {MIN_DEPTH_MM} mm in front of the cameras (z > 0 is forward)"),
+            format!("reaches z = {nearest_z:.1} mm"),
+            format!(
+                "objects at least {MIN_DEPTH_MM} mm in front of the cameras (z > 0 is forward)"
+            ),
         ));
     }
     Ok(SceneObject { shape, material })
@@ -366,10 +380,11 @@ fn resolve_object(
 fn object_material(spec: &ObjectSpec, resolver: &mut Resolver<'_>, ctx: &str) -> Result<Material> {
     match (&spec.material, &spec.chart) {
         (Some(m), None) => material(m, resolver, ctx),
-        (None, None) => Err(Error::invalid(ctx, "has no material")),
-        (Some(_), Some(_)) => Err(Error::invalid(
+        (None, None) => Err(Error::mismatch(ctx, "no material", "a material")),
+        (Some(_), Some(_)) => Err(Error::mismatch(
             ctx,
-            "a chart has its own measured patches; remove its material",
+            "a chart with a material",
+            "no material: a chart has its own measured patches",
         )),
         (None, Some(chart_spec)) => {
             let chart = builtin::reflectances("colorchecker_n_ohta")?;
@@ -394,9 +409,10 @@ fn object_shape(spec: &ObjectSpec, ctx: &str) -> Result<(Shape, f64)> {
     if let Some(s) = &spec.rectangle {
         let size = s.size_mm.as_deref().unwrap_or_default();
         if size.len() != 2 {
-            return Err(Error::invalid(
-                ctx,
-                format!("rectangle size_mm {size:?} (expected [width, height])"),
+            return Err(Error::mismatch(
+                format!("{ctx}: rectangle size_mm"),
+                format!("{size:?}"),
+                "[width, height]",
             ));
         }
         let (w, h) = (
@@ -429,12 +445,13 @@ fn object_shape(spec: &ObjectSpec, ctx: &str) -> Result<(Shape, f64)> {
     let s = spec
         .cuboid
         .as_ref()
-        .ok_or_else(|| Error::invalid(ctx, "missing shape"))?;
+        .ok_or_else(|| Error::mismatch(ctx, "no shape", "a shape"))?;
     let size = s.size_mm.as_deref().unwrap_or_default();
     if size.len() != 3 {
-        return Err(Error::invalid(
-            ctx,
-            format!("box size_mm {size:?} (expected [width, height, depth])"),
+        return Err(Error::mismatch(
+            format!("{ctx}: box size_mm"),
+            format!("{size:?}"),
+            "[width, height, depth]",
         ));
     }
     let half = Vec3::new(
@@ -469,12 +486,10 @@ impl Scene {
     /// Resolves and validates a scene file; relative texture paths are taken from `base`.
     pub fn resolve(file: SceneFile, base: &Path) -> Result<Self> {
         if file.objects.is_empty() || file.objects.len() > MAX_OBJECTS {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 format!("scene '{}'", file.name),
-                format!(
-                    "{} objects (expected 1 to {MAX_OBJECTS})",
-                    file.objects.len()
-                ),
+                format!("{} objects", file.objects.len()),
+                format!("1 to {MAX_OBJECTS}"),
             ));
         }
         let mut resolver = Resolver {
@@ -661,14 +676,15 @@ mod tests {
     #[test]
     fn bad_scenes_are_clear_errors() {
         let cases = [
-            ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [10, 10] }\nmaterial = { texture = 'nope' }\n", "unknown texture 'nope'"),
+            ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [10, 10] }\nmaterial = { texture = 'nope' }\n", "texture 'nope'"),
             ("name = 'x'\n[[object]]\nsphere = { centre_mm = [0, 0, -500], radius_mm = 100 }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "in front of the cameras"),
-            ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [-1, 10] }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "width -1"),
+            ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [-1, 10] }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "width is -1"),
             ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [10, 10] }\n", "no material"),
             ("name = 'x'\n[[object]]\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "exactly one of rectangle"),
-            ("name = 'x'\n[[object]]\nsphere = { centre_mm = [0, 0, 900], radius_mm = 100 }\nmaterial = { srgb = [1.5, 0.5, 0.5] }\n", "sRGB colour"),
+            ("name = 'x'\n[[object]]\nsphere = { centre_mm = [0, 0, 900], radius_mm = 100 }\nmaterial = { srgb = [1.5, 0.5, 0.5] }\n", "srgb"),
+            ("name = 'x'\n[[object]]\nrectangle = { centre_mm = [0, 0, 1000], size_mm = [10, 10], rotation_deg = [nan, 0, 0] }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "rotation_deg"),
             ("name = 'x'\n[[object]]\nsphere = { centre_mm = [0, 0, 900], radius_mm = 100 }\nmaterial = { pattern = 'zigzag' }\n", "pattern 'zigzag'"),
-            ("name = 'x'\n[[object]]\nchart = { centre_mm = [0, 0, 900] }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "remove its material"),
+            ("name = 'x'\n[[object]]\nchart = { centre_mm = [0, 0, 900] }\nmaterial = { srgb = [0.5, 0.5, 0.5] }\n", "own measured patches"),
         ];
         for (text, needle) in cases {
             let err = SceneFile::from_toml_str(text, "t")

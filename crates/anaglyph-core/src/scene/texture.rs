@@ -72,8 +72,10 @@ impl Texture {
 
     /// Decodes an sRGB PNG or TIFF file.
     pub fn load(path: &Path) -> Result<Self> {
-        let image = image::open(path)
-            .map_err(|e| Error::invalid(path.display().to_string(), e.to_string()))?;
+        let image = image::open(path).map_err(|e| Error::Decode {
+            file: path.into(),
+            message: e.to_string(),
+        })?;
         Ok(Self::from_image(image))
     }
 
@@ -102,17 +104,18 @@ pub fn builtin_texture(name: &str) -> Result<Texture> {
     let (_, bytes) = BUILTIN_TEXTURES
         .iter()
         .find(|(k, _)| *k == name)
-        .ok_or_else(|| {
-            Error::invalid(
-                "texture",
-                format!(
-                    "no built-in texture '{name}' (available: {})",
-                    TEXTURE_NAMES.join(", ")
-                ),
-            )
+        .ok_or_else(|| Error::NotFound {
+            what: "built-in texture".into(),
+            name: name.to_string(),
+            available: TEXTURE_NAMES.join(", "),
         })?;
-    let image = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
-        .map_err(|e| Error::invalid(format!("texture '{name}'"), e.to_string()))?;
+    let image =
+        image::load_from_memory_with_format(bytes, image::ImageFormat::Png).map_err(|e| {
+            Error::Decode {
+                file: format!("built-in texture '{name}'").into(),
+                message: e.to_string(),
+            }
+        })?;
     Ok(Texture::from_image(image))
 }
 

@@ -90,8 +90,7 @@ pub fn write_simulation(
         views: records,
         seconds,
     };
-    let json = serde_json::to_string_pretty(&manifest)
-        .map_err(|e| Error::invalid("manifest", e.to_string()))?;
+    let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::output("manifest", e))?;
     write_atomically(&dir.join("manifest.json"), |w| w.write_all(json.as_bytes()))?;
     super::write_contact_sheet(
         &dir.join("contact_sheet.png"),

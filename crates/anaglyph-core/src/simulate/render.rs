@@ -364,33 +364,37 @@ impl Simulation {
             || settings.width > MAX_SIDE
             || settings.height > MAX_SIDE
         {
-            return Err(Error::invalid(
-                "simulation",
-                format!(
-                    "size {}x{} (expected 1 to {MAX_SIDE} per side)",
-                    settings.width, settings.height
-                ),
+            return Err(Error::mismatch(
+                "simulation size",
+                format!("{}x{}", settings.width, settings.height),
+                format!("1 to {MAX_SIDE} per side"),
             ));
         }
         if !(1..=8).contains(&settings.supersampling) {
-            return Err(Error::invalid(
-                "simulation",
-                format!("supersampling {} (expected 1 to 8)", settings.supersampling),
+            return Err(Error::out_of_range(
+                "simulation supersampling",
+                settings.supersampling as f64,
+                "1 to 8",
             ));
         }
         let white_ok = settings.white_reflectance > 0.0 && settings.white_reflectance <= 1.0;
         if !white_ok || !(0.0..1.0).contains(&settings.exposure_jitter) {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "simulation",
-                "white reflectance must be in (0, 1] and exposure jitter in [0, 1)",
+                format!(
+                    "white reflectance {} and exposure jitter {}",
+                    settings.white_reflectance, settings.exposure_jitter
+                ),
+                "a white reflectance in (0, 1] and an exposure jitter in [0, 1)",
             ));
         }
         let bands = rig.reconstruction_shape()?;
         if bands.start < UPSAMPLING_SHAPE.start || bands.end() > UPSAMPLING_SHAPE.end() {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "simulation",
+                format!("reconstruction bands {bands} leave the scene spectra"),
                 format!(
-                    "reconstruction bands {bands} leave the scene spectra's {}–{} nm",
+                    "bands within the scene spectra's {}–{} nm",
                     UPSAMPLING_SHAPE.start,
                     UPSAMPLING_SHAPE.end()
                 ),
@@ -404,10 +408,11 @@ impl Simulation {
         let responses = EffectiveResponses::of_rig(&lit)?;
         let (lo, hi) = (responses.grid.start, responses.grid.end());
         if lo < UPSAMPLING_SHAPE.start - 1e-9 || hi > UPSAMPLING_SHAPE.end() + 1e-9 {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "simulation",
+                format!("sensor support {lo}–{hi} nm"),
                 format!(
-                    "sensor support {lo}–{hi} nm exceeds the scene spectra's {}–{} nm",
+                    "a support within the scene spectra's {}–{} nm",
                     UPSAMPLING_SHAPE.start,
                     UPSAMPLING_SHAPE.end()
                 ),
@@ -423,12 +428,10 @@ impl Simulation {
         let render_c = embed_in_upsampling_grid(render_c)?;
         if let Some(m) = settings.metamers {
             if !(m.amplitude >= 0.0 && m.amplitude.is_finite() && m.scale_mm > 0.0) {
-                return Err(Error::invalid(
-                    "simulation",
-                    format!(
-                        "metameric variation amplitude {} and scale {} mm (expected >= 0 and > 0)",
-                        m.amplitude, m.scale_mm
-                    ),
+                return Err(Error::mismatch(
+                    "simulation metameric variation",
+                    format!("amplitude {} and scale {} mm", m.amplitude, m.scale_mm),
+                    "an amplitude >= 0 and a scale > 0",
                 ));
             }
         }

@@ -62,29 +62,29 @@ impl ResponseCurve {
     fn validate(&self) -> Result<()> {
         let ctx = || format!("curve '{}'", self.name);
         if self.wavelengths.len() < 2 {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 ctx(),
-                format!("{} samples (expected at least 2)", self.wavelengths.len()),
+                format!("{} samples", self.wavelengths.len()),
+                "at least 2",
             ));
         }
         if self.channel_names.is_empty() || self.channel_names.len() != self.values.len() {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 ctx(),
                 format!(
-                    "{} channel names for {} value columns (expected equal and >= 1)",
+                    "{} channel names for {} value columns",
                     self.channel_names.len(),
                     self.values.len()
                 ),
+                "one name per column, at least one",
             ));
         }
         for w in self.wavelengths.windows(2) {
             if !(w[1] > w[0]) {
-                return Err(Error::invalid(
+                return Err(Error::mismatch(
                     ctx(),
-                    format!(
-                        "wavelengths not strictly increasing at {} then {} nm",
-                        w[0], w[1]
-                    ),
+                    format!("wavelengths {} then {} nm", w[0], w[1]),
+                    "strictly increasing wavelengths",
                 ));
             }
         }
@@ -93,31 +93,34 @@ impl ResponseCurve {
             .iter()
             .find(|w| !w.is_finite() || **w <= 0.0)
         {
-            return Err(Error::invalid(
-                ctx(),
-                format!("wavelength {w} nm is not positive and finite"),
+            return Err(Error::out_of_range(
+                format!("{} wavelength", ctx()),
+                *w,
+                "a positive, finite wavelength in nm",
             ));
         }
         for (c, column) in self.values.iter().enumerate() {
             if column.len() != self.wavelengths.len() {
-                return Err(Error::invalid(
-                    ctx(),
-                    format!(
-                        "channel '{}' has {} values for {} wavelengths",
-                        self.channel_names[c],
-                        column.len(),
-                        self.wavelengths.len()
+                return Err(Error::Shape {
+                    op: format!(
+                        "{}: channel '{}' against its wavelengths",
+                        ctx(),
+                        self.channel_names[c]
                     ),
-                ));
+                    got: vec![column.len()],
+                    expected: vec![self.wavelengths.len()],
+                });
             }
             if let Some(i) = column.iter().position(|v| !v.is_finite()) {
-                return Err(Error::invalid(
-                    ctx(),
-                    format!(
-                        "channel '{}' is {} at {} nm (NaN/Inf not allowed)",
-                        self.channel_names[c], column[i], self.wavelengths[i]
+                return Err(Error::NonFinite {
+                    what: format!(
+                        "{}: channel '{}' at {} nm",
+                        ctx(),
+                        self.channel_names[c],
+                        self.wavelengths[i]
                     ),
-                ));
+                    value: column[i],
+                });
             }
         }
         Ok(())
@@ -279,11 +282,10 @@ impl ResponseCurve {
         self.channel_names
             .iter()
             .position(|c| c == name)
-            .ok_or_else(|| {
-                Error::invalid(
-                    format!("curve '{}'", self.name),
-                    format!("no channel '{name}' (has {:?})", self.channel_names),
-                )
+            .ok_or_else(|| Error::NotFound {
+                what: format!("channel of curve '{}'", self.name),
+                name: name.to_string(),
+                available: self.channel_names.join(", "),
             })
     }
 
@@ -350,9 +352,10 @@ impl ResponseCurve {
     /// Exact integral of channel `c`'s piecewise-linear interpolant over `[lo, hi]` nm.
     pub fn integrate(&self, c: usize, lo: f64, hi: f64) -> Result<f64> {
         if !(lo <= hi) {
-            return Err(Error::invalid(
-                format!("curve '{}'", self.name),
-                format!("band {lo} to {hi} nm is empty"),
+            return Err(Error::mismatch(
+                format!("curve '{}': integration band", self.name),
+                format!("{lo} to {hi} nm"),
+                "a band whose start is at most its end",
             ));
         }
         self.check_covers(lo, hi)?;
@@ -404,8 +407,14 @@ mod tests {
             ("wavelength_nm,a\n400,1\n", "at least 2"),
             ("wavelength_nm,a\n400,1\n400,2\n", "strictly increasing"),
             ("wavelength_nm,a\n410,1\n400,2\n", "strictly increasing"),
-            ("wavelength_nm,a\n400,1\n410,NaN\n", "NaN/Inf"),
-            ("wavelength_nm,a\n400,1\n410,inf\n", "NaN/Inf"),
+            (
+                "wavelength_nm,a\n400,1\n410,NaN\n",
+                "expected a finite number",
+            ),
+            (
+                "wavelength_nm,a\n400,1\n410,inf\n",
+                "expected a finite number",
+            ),
             ("wavelength_nm,a,b\n400,1\n410,2,3\n", "missing"),
             ("wavelength_nm,a\n400,1,2\n410,2\n", "more than 2 columns"),
             ("wavelength_nm,a\n400,x\n410,2\n", "not a number"),
@@ -416,6 +425,15 @@ mod tests {
                 .to_string();
             assert!(err.contains(needle), "{text:?}: {err}");
         }
+        let variant = |text: &str| ResponseCurve::from_csv_str("bad", text).unwrap_err();
+        assert!(matches!(
+            variant("wavelength_nm,a\n400,1\n410,NaN\n"),
+            Error::NonFinite { .. }
+        ));
+        assert!(matches!(
+            variant("wavelength_nm,a\n410,1\n400,2\n"),
+            Error::Mismatch { .. }
+        ));
     }
 
     #[test]

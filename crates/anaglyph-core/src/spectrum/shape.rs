@@ -35,17 +35,19 @@ impl SpectralShape {
     /// must be a whole number of steps (within 1e-6 nm).
     pub fn from_range(start: f64, end: f64, step: f64) -> Result<Self> {
         if !(step.is_finite() && step > 0.0 && start.is_finite() && end.is_finite()) {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "spectral shape",
-                format!("start {start}, end {end}, step {step}: need finite values and step > 0"),
+                format!("start {start}, end {end}, step {step}"),
+                "finite values and a step > 0",
             ));
         }
         let steps = (end - start) / step;
         let whole = steps.round();
         if steps < -1e-9 || (steps - whole).abs() > 1e-6 {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "spectral shape",
-                format!("{start} to {end} nm is not a whole number of {step} nm steps"),
+                format!("{start} to {end} nm in {step} nm steps"),
+                "a whole number of steps",
             ));
         }
         Self::new(start, step, whole as usize + 1)
@@ -54,24 +56,24 @@ impl SpectralShape {
     /// Checks finiteness, a positive step and a sane count.
     pub fn validate(&self) -> Result<()> {
         if !self.start.is_finite() || !self.step.is_finite() || self.step <= 0.0 {
-            return Err(Error::invalid(
+            return Err(Error::mismatch(
                 "spectral shape",
-                format!(
-                    "start {} step {}: need finite values and step > 0",
-                    self.start, self.step
-                ),
+                format!("start {} step {}", self.start, self.step),
+                "finite values and a step > 0",
             ));
         }
         if self.count == 0 || self.count > MAX_SHAPE_COUNT {
-            return Err(Error::invalid(
-                "spectral shape",
-                format!("count {} (expected 1 to {MAX_SHAPE_COUNT})", self.count),
+            return Err(Error::out_of_range(
+                "spectral shape count",
+                self.count as f64,
+                format!("1 to {MAX_SHAPE_COUNT}"),
             ));
         }
         if self.start <= 0.0 {
-            return Err(Error::invalid(
-                "spectral shape",
-                format!("start {} nm (expected > 0)", self.start),
+            return Err(Error::out_of_range(
+                "spectral shape start (nm)",
+                self.start,
+                "> 0",
             ));
         }
         Ok(())

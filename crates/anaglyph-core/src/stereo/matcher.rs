@@ -205,22 +205,24 @@ fn validate(left: &GreyImage, right: &GreyImage, max_disp: usize) -> Result<()> 
             });
         }
         if let Some(bad) = image.data.iter().find(|v| !v.is_finite()) {
-            return Err(Error::invalid(
-                format!("{name} image"),
-                format!("holds {bad}; expected finite intensities"),
-            ));
+            return Err(Error::NonFinite {
+                what: format!("a value of the {name} image"),
+                value: *bad as f64,
+            });
         }
     }
     if left.width < 2 || left.height < 1 {
-        return Err(Error::invalid(
-            "stereo matching",
-            format!("image is {}×{}, too small", left.width, left.height),
+        return Err(Error::mismatch(
+            "stereo matching: image size",
+            format!("{}×{}", left.width, left.height),
+            "at least 2×1",
         ));
     }
     if max_disp < 2 || max_disp > left.width {
-        return Err(Error::invalid(
+        return Err(Error::out_of_range(
             "max disparity",
-            format!("{max_disp}; expected 2 to the image width {}", left.width),
+            max_disp as f64,
+            format!("2 to the image width {}", left.width),
         ));
     }
     Ok(())

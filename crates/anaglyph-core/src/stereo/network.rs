@@ -54,7 +54,7 @@ impl MatchingNetwork {
 
     /// Reads a network from the bytes of a safetensors file.
     pub fn from_safetensors(bytes: &[u8], context: &str) -> Result<Self> {
-        let invalid = |message: String| Error::invalid(context, message);
+        let invalid = |message: String| Error::decode(context, message);
         let (_, header) = SafeTensors::read_metadata(bytes)
             .map_err(|e| invalid(format!("not a safetensors file ({e})")))?;
         let tensors = SafeTensors::deserialize(bytes)

@@ -102,13 +102,13 @@ pub fn multi_baseline_disparities(
 fn fast_network<'a>(settings: &RegistrationSettings<'a>) -> Result<&'a MatchingNetwork> {
     match settings.cost {
         MatchingCost::Learned(network) if !network.is_accurate() => Ok(network),
-        other => Err(Error::invalid(
+        other => Err(Error::mismatch(
             "multi-baseline registration",
             format!(
-                "needs the fast learned cost (its features compare across views); got {} \
-                 (use pairwise registration for it)",
+                "the {} cost (use pairwise registration for it)",
                 other.name()
             ),
+            "the fast learned cost, whose features compare across views",
         )),
     }
 }

@@ -107,9 +107,10 @@ impl ScenePrior {
             });
         }
         if clusters == 0 {
-            return Err(Error::invalid(
-                "scene prior",
-                "the mixture needs at least one cluster",
+            return Err(Error::out_of_range(
+                "scene prior clusters",
+                0.0,
+                "at least 1",
             ));
         }
         let Eligible {
@@ -244,9 +245,10 @@ impl ScenePrior {
         }
         check_shapes(rows, knots, measurements, spectra)?;
         if rows > 128 {
-            return Err(Error::invalid(
-                "scene prior",
-                format!("{rows} measurement rows; at most 128 are supported"),
+            return Err(Error::out_of_range(
+                "scene prior measurement rows",
+                rows as f64,
+                "at most 128",
             ));
         }
         if !(noise_scale > 0.0) || !noise_scale.is_finite() {
