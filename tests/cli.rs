@@ -159,7 +159,10 @@ fn demux_writes_an_envi_cube_with_wavelengths() {
     let o = anaglyph(&args, dir.path());
     assert!(o.status.success(), "{}", stderr(&o));
     let cube = read_envi(&dir.path().join("S.hdr")).unwrap();
-    assert_eq!((cube.width, cube.height, cube.bands), (3, 2, 2));
+    assert_eq!(
+        (cube.image.width, cube.image.height, cube.image.channels),
+        (3, 2, 2)
+    );
     assert_eq!(cube.wavelengths, Some(vec![500.0, 510.0]));
     assert!((cube.at(2, 1, 0) - 0.25).abs() < 1e-6 && (cube.at(2, 1, 1) - 0.75).abs() < 1e-6);
     write_npy_f64(
@@ -429,7 +432,10 @@ fn simulate_writes_the_documented_layout_and_rejects_bad_scenes() {
         }
     }
     let cube = read_envi(&sim.join("truth/r0c0.hdr")).unwrap();
-    assert_eq!((cube.width, cube.height, cube.bands), (96, 72, 24));
+    assert_eq!(
+        (cube.image.width, cube.image.height, cube.image.channels),
+        (96, 72, 24)
+    );
     let rig = anaglyph_core::rig::Rig::load(&sim.join("rig.toml")).unwrap();
     assert!(rig
         .cameras
@@ -661,7 +667,10 @@ fn reconstruct_writes_the_light_field_layout_and_eval_scores_it() {
         assert!(d.join("rec").join(f).is_file(), "missing {f}");
     }
     let cube = read_envi(&d.join("rec/views/r0c0.hdr")).unwrap();
-    assert_eq!((cube.width, cube.height, cube.bands), (160, 120, 24));
+    assert_eq!(
+        (cube.image.width, cube.image.height, cube.image.channels),
+        (160, 120, 24)
+    );
     assert_eq!(cube.wavelengths.as_ref().unwrap()[23], 634.0);
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("rec/manifest.json")).unwrap())

@@ -74,6 +74,7 @@ fn stereo_on_neighbours(
     let views = &simulation.views;
     let (w, h) = (simulation.settings.width, simulation.settings.height);
     let grey = |capture: &[f32], channels: usize| GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: capture

@@ -4,6 +4,7 @@ use super::format_seconds;
 use crate::cli::DemuxArgs;
 use crate::progress::spinner;
 use anaglyph_core::demux::{demultiplex_as, DemuxOptions, DemuxReport, Sample};
+use anaglyph_core::image::Image;
 use anaglyph_core::io::{
     open_npy_rows, read_npy_bool, read_npy_f64, read_npy_float, write_envi, write_npy_f32,
     write_npy_f64, EnviCube, FloatArray,
@@ -78,13 +79,10 @@ fn read_sensing(path: &Path) -> anyhow::Result<(usize, usize, Vec<f64>)> {
 fn write_cube(args: &DemuxArgs, shape: &[usize], data: Vec<f32>) -> anyhow::Result<()> {
     let bands = shape[2];
     let cube = EnviCube {
-        width: shape[1],
-        height: shape[0],
-        bands,
+        image: Image::new(shape[1], shape[0], bands, data)?,
         wavelengths: args
             .wavelengths
             .map(|(start, step)| (0..bands).map(|b| start + step * b as f64).collect()),
-        data,
     };
     write_envi(&args.out, &cube, "anaglyph demux spectra")?;
     Ok(())

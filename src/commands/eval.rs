@@ -65,7 +65,8 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
         }
         let estimate = read_envi(&path)?;
         let expected = read_envi(&truth.join(format!("truth/r{r}c{c}.hdr")))?;
-        let shape = |e: &anaglyph_core::io::EnviCube| (e.width, e.height, e.bands);
+        let shape =
+            |e: &anaglyph_core::io::EnviCube| (e.image.width, e.image.height, e.image.channels);
         if shape(&estimate) != shape(&expected) {
             anyhow::bail!(
                 "{}: {:?} (width, height, bands) but the truth is {:?}",
@@ -99,6 +100,7 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
             .collect::<anyhow::Result<_>>()?;
         let mask = seen_by_all_views(&disparities, &positions, v, &geometry, w, h);
         let pixel_ok = estimate
+            .image
             .data
             .chunks_exact(nb)
             .filter(|p| p.iter().all(|x| x.is_finite()))
@@ -106,8 +108,15 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
         views.push(ViewScores {
             row: r,
             col: c,
-            all_pixels: score_cube(&expected.data, &estimate.data, w, h, nb, None)?,
-            seen_by_all: score_cube(&expected.data, &estimate.data, w, h, nb, Some(&mask))?,
+            all_pixels: score_cube(&expected.image.data, &estimate.image.data, w, h, nb, None)?,
+            seen_by_all: score_cube(
+                &expected.image.data,
+                &estimate.image.data,
+                w,
+                h,
+                nb,
+                Some(&mask),
+            )?,
             coverage: pixel_ok as f64 / (w * h).max(1) as f64,
         });
         bands_nm = expected

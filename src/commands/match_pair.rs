@@ -34,6 +34,7 @@ fn load_grey(path: &Path, channel: ChannelChoice) -> anyhow::Result<GreyImage> {
         );
     }
     Ok(GreyImage {
+        channels: 1,
         width: image.width,
         height: image.height,
         data,

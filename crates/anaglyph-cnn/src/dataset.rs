@@ -66,6 +66,7 @@ fn grey_of(capture: &[f32], channels: usize, w: usize, h: usize, channel: Channe
         })
         .collect();
     GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data,
@@ -286,6 +287,7 @@ pub fn channel_swap_pairs() -> anaglyph_core::Result<Vec<StereoPair>> {
         let texture = builtin_texture(name)?;
         let (w, h) = (texture.width, texture.height);
         let channel = |c: usize| GreyImage {
+            channels: 1,
             width: w,
             height: h,
             data: texture.rgb.iter().map(|p| p[c]).collect(),

@@ -12,6 +12,7 @@ use rand_chacha::ChaCha8Rng;
 fn random_image(w: usize, h: usize, seed: u64) -> GreyImage {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: (0..w * h).map(|_| rng.random::<f32>()).collect(),

@@ -37,6 +37,7 @@ fn views() -> Vec<GridImage> {
                 row,
                 col,
                 image: GreyImage {
+                    channels: 1,
                     width: W,
                     height: H,
                     data: (0..W * H)

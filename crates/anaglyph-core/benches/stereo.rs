@@ -21,6 +21,7 @@ fn pair() -> (GreyImage, GreyImage) {
             + 0.1 * ((x * 12.9898 + y * 78.233).sin() * 43758.5453).fract()) as f32
     };
     let make = |shift: f64, gain: f32| GreyImage {
+        channels: 1,
         width: W,
         height: H,
         data: (0..W * H)

@@ -62,6 +62,17 @@ impl<T: Clone> Image<T> {
     }
 }
 
+/// A one-channel image (`channels == 1`) of `f32` values: what stereo matching compares.
+pub type GreyImage = Image<f32>;
+
+impl<T: Copy> Image<T> {
+    /// The value at (x, y) of a one-channel image.
+    pub fn at(&self, x: usize, y: usize) -> T {
+        debug_assert_eq!(self.channels, 1, "at() reads one-channel images");
+        self.data[y * self.width + x]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -33,6 +33,7 @@ fn texture(x: f64, y: f64) -> f32 {
 
 fn shifted_pair(w: usize, h: usize, shift: f64, gain: f32, offset: f32) -> (GreyImage, GreyImage) {
     let left = GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: (0..w * h)
@@ -40,6 +41,7 @@ fn shifted_pair(w: usize, h: usize, shift: f64, gain: f32, offset: f32) -> (Grey
             .collect(),
     };
     let right = GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: (0..w * h)
@@ -112,6 +114,7 @@ fn left_right_check_rejects_an_inconsistent_match() {
 /// Luminance of a linear RGB capture.
 fn grey(capture: &[f32], w: usize, h: usize) -> GreyImage {
     GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: capture
@@ -322,4 +325,38 @@ fn vertical_pairs_match_through_transposition() {
     assert!(share > VERTICAL_GOOD_BOUND, "{share}");
     // Transposition is an involution.
     assert_eq!(transpose(&transpose(&top)), top);
+}
+
+#[test]
+fn the_chain_refuses_pairs_it_cannot_match_before_any_work() {
+    use anaglyph_core::Error;
+    let (left, right) = shifted_pair(40, 20, 3.0, 1.0, 0.0);
+    let cost = MatchingCost::Census;
+    let settings = MatchSettings::for_cost(&cost, 8);
+    let rgb = GreyImage {
+        channels: 3,
+        width: 40,
+        height: 20,
+        data: vec![0.5; 40 * 20 * 3],
+    };
+    let err = match_pair(&left, &rgb, &cost, &settings).unwrap_err();
+    assert!(
+        matches!(&err, Error::Shape { got, .. } if got[0] == 3),
+        "{err}"
+    );
+    let mut narrow = right.clone();
+    narrow.width = 20;
+    narrow.data.truncate(20 * 20);
+    let err = match_pair(&left, &narrow, &cost, &settings).unwrap_err();
+    assert!(matches!(err, Error::Shape { .. }), "{err}");
+    let mut holed = right.clone();
+    holed.data[7] = f32::NAN;
+    let err = match_pair(&left, &holed, &cost, &settings).unwrap_err();
+    assert!(matches!(err, Error::NonFinite { .. }), "{err}");
+    let wide = MatchSettings::for_cost(&cost, 64);
+    let err = match_pair(&left, &right, &cost, &wide).unwrap_err();
+    assert!(
+        matches!(&err, Error::OutOfRange { value, .. } if *value == 64.0),
+        "{err}"
+    );
 }

@@ -5,6 +5,7 @@
 //! float32 and float64 data, BSQ/BIL/BIP interleave, either byte order, header offset.
 
 use super::{write_atomically, MAX_RASTER_VALUES};
+use crate::image::Image;
 use crate::{Error, Result};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -12,29 +13,34 @@ use std::path::{Path, PathBuf};
 /// Largest ENVI header read (a header with 10 000 band names is about 200 kB).
 pub const MAX_ENVI_HEADER_BYTES: u64 = 4 << 20;
 
-/// A spectral cube in memory, band-interleaved by pixel: `data[(y * width + x) * bands + b]`.
+/// A spectral cube in memory: an image whose channels are the bands, band-interleaved by
+/// pixel (`image.data[(y * width + x) * bands + b]`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EnviCube {
-    pub width: usize,
-    pub height: usize,
-    pub bands: usize,
+    pub image: Image<f32>,
     /// Band centres in nm, when known.
     pub wavelengths: Option<Vec<f64>>,
-    pub data: Vec<f32>,
 }
 
 impl EnviCube {
+    /// Number of bands.
+    pub fn bands(&self) -> usize {
+        self.image.channels
+    }
+
     /// Value of band `b` at pixel `(x, y)`.
     pub fn at(&self, x: usize, y: usize, b: usize) -> f32 {
-        self.data[(y * self.width + x) * self.bands + b]
+        self.image.pixel(x, y)[b]
     }
 
     /// One band as a row-major plane.
     pub fn band(&self, b: usize) -> Vec<f32> {
-        self.data
+        let bands = self.bands();
+        self.image
+            .data
             .iter()
             .skip(b)
-            .step_by(self.bands)
+            .step_by(bands)
             .copied()
             .collect()
     }
@@ -47,19 +53,21 @@ fn data_path(header: &Path) -> PathBuf {
 
 /// Writes `cube` as `path` (.hdr) and the `.img` beside it, both atomically.
 pub fn write_envi(path: &Path, cube: &EnviCube, description: &str) -> Result<()> {
-    if cube.data.len() != cube.width * cube.height * cube.bands || cube.bands == 0 {
+    if cube.image.data.len() != cube.image.width * cube.image.height * cube.image.channels
+        || cube.image.channels == 0
+    {
         return Err(Error::Shape {
             op: "write_envi".into(),
-            got: vec![cube.data.len()],
-            expected: vec![cube.width * cube.height * cube.bands],
+            got: vec![cube.image.data.len()],
+            expected: vec![cube.image.width * cube.image.height * cube.image.channels],
         });
     }
     if let Some(w) = &cube.wavelengths {
-        if w.len() != cube.bands {
+        if w.len() != cube.image.channels {
             return Err(Error::Shape {
                 op: "write_envi wavelengths".into(),
                 got: vec![w.len()],
-                expected: vec![cube.bands],
+                expected: vec![cube.image.channels],
             });
         }
     }
@@ -67,9 +75,9 @@ pub fn write_envi(path: &Path, cube: &EnviCube, description: &str) -> Result<()>
         "ENVI\ndescription = {{{}}}\nsamples = {}\nlines = {}\nbands = {}\nheader offset = 0\n\
          file type = ENVI Standard\ndata type = 4\ninterleave = bip\nbyte order = 0\n",
         description.replace(['{', '}'], ""),
-        cube.width,
-        cube.height,
-        cube.bands
+        cube.image.width,
+        cube.image.height,
+        cube.image.channels
     );
     if let Some(w) = &cube.wavelengths {
         let list =
@@ -82,7 +90,7 @@ pub fn write_envi(path: &Path, cube: &EnviCube, description: &str) -> Result<()>
         ));
     }
     write_atomically(&data_path(path), |w| {
-        for chunk in cube.data.chunks(1 << 16) {
+        for chunk in cube.image.data.chunks(1 << 16) {
             let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
             w.write_all(&bytes)?;
         }
@@ -399,11 +407,13 @@ pub fn read_envi(path: &Path) -> Result<EnviCube> {
         }
     }
     Ok(EnviCube {
-        width: w,
-        height: h,
-        bands: n,
+        image: Image {
+            width: w,
+            height: h,
+            channels: n,
+            data,
+        },
         wavelengths: header.wavelengths,
-        data,
     })
 }
 
@@ -416,11 +426,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("cube.hdr");
         let cube = EnviCube {
-            width: 3,
-            height: 2,
-            bands: 4,
+            image: Image::new(3, 2, 4, (0..24).map(|v| v as f32 * 0.25).collect()).unwrap(),
             wavelengths: Some(vec![450.0, 458.0, 466.0, 474.0]),
-            data: (0..24).map(|v| v as f32 * 0.25).collect(),
         };
         write_envi(&path, &cube, "test").unwrap();
         let header = std::fs::read_to_string(&path).unwrap();
@@ -452,7 +459,7 @@ mod tests {
             .collect();
         std::fs::write(dir.path().join("x.img"), raw).unwrap();
         let cube = read_envi(&path).unwrap();
-        assert_eq!(cube.data, vec![1.0, 3.0, 2.0, 4.0]);
+        assert_eq!(cube.image.data, vec![1.0, 3.0, 2.0, 4.0]);
         assert_eq!(cube.wavelengths, Some(vec![500.0, 600.0]));
     }
 

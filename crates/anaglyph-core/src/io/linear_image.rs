@@ -7,15 +7,7 @@ use crate::{Error, Result};
 use std::path::Path;
 
 /// An interleaved linear raster with values in [0, 1].
-#[derive(Debug, Clone, PartialEq)]
-pub struct LinearImage {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    /// Bits per sample of the source file (8 or 16), for saturation checks.
-    pub bit_depth: u8,
-    pub data: Vec<f32>,
-}
+pub type LinearImage = crate::image::Image<f32>;
 
 /// Reads a PNG or TIFF as linear values in [0, 1]; alpha is dropped.
 pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
@@ -33,20 +25,14 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
     })?;
     use image::DynamicImage as D;
     let (width, height) = (decoded.width() as usize, decoded.height() as usize);
-    let (channels, bit_depth, data): (usize, u8, Vec<f32>) = match decoded {
-        D::ImageLuma8(i) => (
-            1,
-            8,
-            i.into_raw().iter().map(|&v| v as f32 / 255.0).collect(),
-        ),
+    let (channels, data): (usize, Vec<f32>) = match decoded {
+        D::ImageLuma8(i) => (1, i.into_raw().iter().map(|&v| v as f32 / 255.0).collect()),
         D::ImageLuma16(i) => (
             1,
-            16,
             i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
         ),
         D::ImageLumaA8(i) => (
             1,
-            8,
             i.into_raw()
                 .chunks_exact(2)
                 .map(|p| p[0] as f32 / 255.0)
@@ -54,25 +40,18 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
         ),
         D::ImageLumaA16(i) => (
             1,
-            16,
             i.into_raw()
                 .chunks_exact(2)
                 .map(|p| p[0] as f32 / 65535.0)
                 .collect(),
         ),
-        D::ImageRgb8(i) => (
-            3,
-            8,
-            i.into_raw().iter().map(|&v| v as f32 / 255.0).collect(),
-        ),
+        D::ImageRgb8(i) => (3, i.into_raw().iter().map(|&v| v as f32 / 255.0).collect()),
         D::ImageRgb16(i) => (
             3,
-            16,
             i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
         ),
         D::ImageRgba8(i) => (
             3,
-            8,
             i.into_raw()
                 .chunks_exact(4)
                 .flat_map(|p| [p[0], p[1], p[2]])
@@ -81,7 +60,6 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
         ),
         D::ImageRgba16(i) => (
             3,
-            16,
             i.into_raw()
                 .chunks_exact(4)
                 .flat_map(|p| [p[0], p[1], p[2]])
@@ -101,7 +79,6 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
         width,
         height,
         channels,
-        bit_depth,
         data,
     })
 }
@@ -151,15 +128,11 @@ mod tests {
             width: 2,
             height: 1,
             channels: 3,
-            bit_depth: 16,
             data: vec![0.0, 0.5, 1.0, 0.25, 1.0 / 65535.0, 0.75],
         };
         write_png16(&path, &img).unwrap();
         let back = read_linear_image(&path).unwrap();
-        assert_eq!(
-            (back.width, back.height, back.channels, back.bit_depth),
-            (2, 1, 3, 16)
-        );
+        assert_eq!((back.width, back.height, back.channels), (2, 1, 3));
         for (a, b) in back.data.iter().zip(&img.data) {
             assert!((a - b).abs() <= 0.5 / 65535.0, "{a} vs {b}");
         }
@@ -175,7 +148,7 @@ mod tests {
             .save(&tiff)
             .unwrap();
         let back = read_linear_image(&tiff).unwrap();
-        assert_eq!((back.channels, back.bit_depth), (3, 16));
+        assert_eq!(back.channels, 3);
         for (a, &b) in back.data.iter().zip(&pixels) {
             assert_eq!(*a, b as f32 / 65535.0);
         }
@@ -185,7 +158,7 @@ mod tests {
             .save(&png)
             .unwrap();
         let grey = read_linear_image(&png).unwrap();
-        assert_eq!((grey.channels, grey.bit_depth), (1, 8));
+        assert_eq!(grey.channels, 1);
         assert_eq!(grey.data, vec![0.0, 0.2, 1.0]);
     }
 

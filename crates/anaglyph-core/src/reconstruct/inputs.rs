@@ -10,6 +10,7 @@
 //! built with the scene's illuminant. Values at or above the saturation level are NaN.
 //! Each camera may also carry its calibrated geometry, for rectification.
 
+use crate::image::Image;
 use crate::io::{read_linear_image, LinearImage};
 use crate::rectify::CameraModel;
 use crate::register::{fill_from_nearest, NormalisedView};
@@ -186,7 +187,6 @@ impl ArrayCaptures {
             width,
             height,
             channels,
-            bit_depth: 16,
             data: data.to_vec(),
         };
         ArrayCaptures {
@@ -230,6 +230,7 @@ impl ArrayCaptures {
                     fill_from_nearest(row);
                 }
                 GreyImage {
+                    channels: 1,
                     width: self.width,
                     height: self.height,
                     data,
@@ -346,10 +347,12 @@ pub fn calibrate(
         views.push(NormalisedView {
             row: cam.row,
             col: cam.col,
-            width: captures.width,
-            height: captures.height,
-            channels: ch,
-            data,
+            image: Image {
+                width: captures.width,
+                height: captures.height,
+                channels: ch,
+                data,
+            },
         });
         records.push(CameraCalibration {
             row: cam.row,

@@ -14,6 +14,7 @@
 //! ```
 
 use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
+use crate::image::Image;
 use crate::io::{
     read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube,
 };
@@ -133,11 +134,13 @@ fn write_cube(
     write_envi(
         &path,
         &EnviCube {
-            width: field.width,
-            height: field.height,
-            bands: field.bands.len(),
+            image: Image {
+                width: field.width,
+                height: field.height,
+                channels: field.bands.len(),
+                data: view.reflectance.clone(),
+            },
             wavelengths: Some(field.bands.clone()),
-            data: view.reflectance.clone(),
         },
         &format!("anaglyph reconstructed reflectance, view {name}"),
     )?;
@@ -176,10 +179,10 @@ fn write_probes(
         None => None,
     };
     if let Some(t) = &truth {
-        if (t.width, t.height, t.bands) != (w, h, nb) {
+        if (t.image.width, t.image.height, t.image.channels) != (w, h, nb) {
             return Err(Error::Shape {
                 op: format!("probe truth of view {name}"),
-                got: vec![t.width, t.height, t.bands],
+                got: vec![t.image.width, t.image.height, t.image.channels],
                 expected: vec![w, h, nb],
             });
         }

@@ -132,7 +132,7 @@ fn matching_images(
     if !by_common_signals {
         return Ok((vec![Vec::new(); views.len()], None));
     }
-    let channels: Vec<usize> = views.iter().map(|v| v.channels).collect();
+    let channels: Vec<usize> = views.iter().map(|v| v.image.channels).collect();
     let signals = common_signals(&calibrated.sensing, &channels, COMMON_SIGNALS)?;
     let images: Vec<Vec<GreyImage>> = signals
         .iter()

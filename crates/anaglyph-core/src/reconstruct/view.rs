@@ -123,8 +123,8 @@ impl<'a> ViewPass<'a> {
             col: cam.col,
             reflectance: solve.spectra,
             disparity: DisparityMap {
-                width: self.context.views[v].width,
-                height: self.context.views[v].height,
+                width: self.context.views[v].image.width,
+                height: self.context.views[v].image.height,
                 convention: DisparityConvention::ColumnStep,
                 data: self.registered.disparities[v].clone(),
             },

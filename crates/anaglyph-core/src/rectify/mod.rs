@@ -361,7 +361,6 @@ impl Rectification {
             width: w,
             height: h,
             channels: ch,
-            bit_depth: image.bit_depth,
             data,
         })
     }
@@ -404,7 +403,6 @@ mod tests {
             width: 160,
             height: 120,
             channels: 1,
-            bit_depth: 16,
             data: (0..160 * 120).map(|i| (i % 97) as f32 / 97.0).collect(),
         };
         assert_eq!(plan.resample(3, &image, 1.0).unwrap().data, image.data);
@@ -454,7 +452,6 @@ mod tests {
             width: 160,
             height: 120,
             channels: 1,
-            bit_depth: 16,
             data: vec![0.5; 160 * 120],
         };
         image.data[60 * 160 + 80] = 1.0;

@@ -90,18 +90,19 @@ pub fn refine_view(
     weights: Option<&[f32]>,
     settings: GuidedRefinement,
 ) -> Result<()> {
-    if white_response.len() != view.channels
+    if white_response.len() != view.image.channels
         || white_response.iter().any(|r| !(*r > 0.0) || !r.is_finite())
     {
         return Err(Error::mismatch(
             format!("white responses of camera r{}c{}", view.row, view.col),
             format!("{white_response:?}"),
-            format!("{} positive, finite values", view.channels),
+            format!("{} positive, finite values", view.image.channels),
         ));
     }
     let guide: Vec<f32> = view
+        .image
         .data
-        .chunks_exact(view.channels)
+        .chunks_exact(view.image.channels)
         .flat_map(|pixel| {
             pixel
                 .iter()
@@ -109,8 +110,18 @@ pub fn refine_view(
                 .map(|(&v, &r)| (v as f64 / r) as f32)
         })
         .collect();
-    let guide = Image::new(view.width, view.height, view.channels, guide)?;
-    let input = Image::new(view.width, view.height, bands, std::mem::take(reflectance))?;
+    let guide = Image::new(
+        view.image.width,
+        view.image.height,
+        view.image.channels,
+        guide,
+    )?;
+    let input = Image::new(
+        view.image.width,
+        view.image.height,
+        bands,
+        std::mem::take(reflectance),
+    )?;
     *reflectance = guided_filter(
         &guide,
         &input,

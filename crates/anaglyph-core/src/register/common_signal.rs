@@ -198,8 +198,9 @@ pub fn common_signal_images(views: &[NormalisedView], signal: &CommonSignal) -> 
         .zip(&signal.weights)
         .map(|(view, weights)| {
             let mut data: Vec<f32> = view
+                .image
                 .data
-                .chunks_exact(view.channels)
+                .chunks_exact(view.image.channels)
                 .map(|p| {
                     p.iter()
                         .zip(weights)
@@ -207,12 +208,13 @@ pub fn common_signal_images(views: &[NormalisedView], signal: &CommonSignal) -> 
                         .sum::<f64>() as f32
                 })
                 .collect();
-            for row in data.chunks_exact_mut(view.width) {
+            for row in data.chunks_exact_mut(view.image.width) {
                 super::fill_from_nearest(row);
             }
             GreyImage {
-                width: view.width,
-                height: view.height,
+                channels: 1,
+                width: view.image.width,
+                height: view.image.height,
                 data,
             }
         })
@@ -222,6 +224,7 @@ pub fn common_signal_images(views: &[NormalisedView], signal: &CommonSignal) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image::Image;
     use crate::spectrum::SpectralShape;
 
     /// A camera of three Gaussian channels (peak 1 on a white surface) behind nothing.
@@ -314,10 +317,12 @@ mod tests {
         let view = NormalisedView {
             row: 0,
             col: 0,
-            width: 3,
-            height: 1,
-            channels: 2,
-            data: vec![1.0, 2.0, f32::NAN, 1.0, 0.5, 0.5],
+            image: Image {
+                width: 3,
+                height: 1,
+                channels: 2,
+                data: vec![1.0, 2.0, f32::NAN, 1.0, 0.5, 0.5],
+            },
         };
         let signal = CommonSignal {
             weights: vec![vec![2.0, -1.0]],

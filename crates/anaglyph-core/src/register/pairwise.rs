@@ -20,6 +20,7 @@ pub const FUSION_TOLERANCE_PX: f32 = 1.0;
 fn mirror(image: &GreyImage) -> GreyImage {
     let w = image.width;
     GreyImage {
+        channels: 1,
         data: image
             .data
             .chunks_exact(w)
@@ -33,6 +34,7 @@ fn mirror(image: &GreyImage) -> GreyImage {
 fn flip(image: &GreyImage) -> GreyImage {
     let w = image.width;
     GreyImage {
+        channels: 1,
         data: image
             .data
             .chunks_exact(w)
@@ -45,6 +47,7 @@ fn flip(image: &GreyImage) -> GreyImage {
 
 fn with_data(like: &GreyImage, data: Vec<f32>) -> GreyImage {
     GreyImage {
+        channels: 1,
         width: like.width,
         height: like.height,
         data,
@@ -186,6 +189,7 @@ mod tests {
     #[test]
     fn mirror_and_flip_are_involutions() {
         let image = GreyImage {
+            channels: 1,
             width: 3,
             height: 2,
             data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],

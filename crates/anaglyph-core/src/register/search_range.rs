@@ -63,6 +63,7 @@ fn downsample(view: &GridImage, factor: usize) -> GridImage {
         row: view.row,
         col: view.col,
         image: GreyImage {
+            channels: 1,
             width: w,
             height: h,
             data,
@@ -145,6 +146,7 @@ mod tests {
             row: 0,
             col: 1,
             image: GreyImage {
+                channels: 1,
                 width: 4,
                 height: 2,
                 data: vec![0.0, 1.0, 2.0, 3.0, 1.0, 2.0, 3.0, 4.0],

@@ -29,6 +29,7 @@
 //! agree with the rest ([`crate::solve::DisputedMeasurements`]).
 
 use super::ArrayGeometry;
+use crate::image::Image;
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -62,11 +63,7 @@ const MAX_CHANNELS: usize = 8;
 pub struct NormalisedView {
     pub row: usize,
     pub col: usize,
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    /// `height × width × channels`.
-    pub data: Vec<f32>,
+    pub image: Image<f32>,
 }
 
 /// How much of each camera a view could use.
@@ -122,7 +119,7 @@ fn check_sizes(
     disparities: &[Vec<f32>],
     me: &NormalisedView,
 ) -> Result<()> {
-    let (w, h) = (me.width, me.height);
+    let (w, h) = (me.image.width, me.image.height);
     if disparities.len() != views.len() {
         return Err(Error::Shape {
             op: "warping: disparity maps".into(),
@@ -131,11 +128,15 @@ fn check_sizes(
         });
     }
     for (v, d) in views.iter().zip(disparities) {
-        if v.width != w || v.height != h || v.data.len() != w * h * v.channels || d.len() != w * h {
+        if v.image.width != w
+            || v.image.height != h
+            || v.image.data.len() != w * h * v.image.channels
+            || d.len() != w * h
+        {
             return Err(Error::Shape {
                 op: format!("warping: view r{}c{}", v.row, v.col),
-                got: vec![v.width, v.height, v.channels, d.len()],
-                expected: vec![w, h, v.channels, w * h],
+                got: vec![v.image.width, v.image.height, v.image.channels, d.len()],
+                expected: vec![w, h, v.image.channels, w * h],
             });
         }
     }
@@ -164,15 +165,15 @@ impl PixelGather<'_> {
         seen: &mut [usize],
     ) {
         let cameras = self.sources.len();
-        let i = y * self.sources[self.reference].view.width + x;
+        let i = y * self.sources[self.reference].view.image.width + x;
         out.fill(f32::NAN);
         let d = self.own[i];
         let mut all = true;
         for (v, source) in self.sources.iter().enumerate() {
-            let ch = source.view.channels;
+            let ch = source.view.image.channels;
             let dst = &mut out[self.first_rows[v]..][..ch];
             if v == self.reference {
-                dst.copy_from_slice(&source.view.data[i * ch..][..ch]);
+                dst.copy_from_slice(&source.view.image.data[i * ch..][..ch]);
                 let ok = dst.iter().all(|m| m.is_finite());
                 seen[v] += usize::from(ok);
                 all &= ok;
@@ -216,8 +217,8 @@ pub fn gather_measurements(
         });
     };
     check_sizes(views, disparities, me)?;
-    let (w, h) = (me.width, me.height);
-    let rows: usize = views.iter().map(|v| v.channels).sum();
+    let (w, h) = (me.image.width, me.image.height);
+    let rows: usize = views.iter().map(|v| v.image.channels).sum();
     let cameras = views.len();
     let depth_order = admission == Admission::DepthOrder;
     let shifts: Vec<(f64, f64)> = views
@@ -255,7 +256,7 @@ pub fn gather_measurements(
             .iter()
             .scan(0, |acc, v| {
                 let first = *acc;
-                *acc += v.channels;
+                *acc += v.image.channels;
                 Some(first)
             })
             .collect(),
@@ -335,7 +336,7 @@ fn warp_one(
         nearest,
         kernel,
     } = *source;
-    let (w, h, ch) = (view.width, view.height, view.channels);
+    let (w, h, ch) = (view.image.width, view.image.height, view.image.channels);
     let (px, py) = (x as f64 + sx * d as f64, y as f64 + sy * d as f64);
     if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
         return Admitted::No;
@@ -377,7 +378,7 @@ fn warp_one(
         let mut value = 0.0;
         for &(p, k) in &taps {
             if k > 0.0 {
-                value += k * view.data[p * ch + c];
+                value += k * view.image.data[p * ch + c];
             }
         }
         if !value.is_finite() {
@@ -433,16 +434,16 @@ fn nearest_of(own: &[f32], w: usize, h: usize, (sx, sy): (f64, f64)) -> Vec<f32>
 /// neighbourhood within [`TEXTURELESS_FACTOR`] times the flatness tolerance of its own in
 /// every channel.
 fn textureless_pixels(view: &NormalisedView) -> Vec<bool> {
-    let (w, h, ch) = (view.width, view.height, view.channels);
+    let (w, h, ch) = (view.image.width, view.image.height, view.image.channels);
     let (radius, k) = (1, TEXTURELESS_FACTOR);
     (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = (i % w, i / w);
-            let centre = &view.data[i * ch..(i + 1) * ch];
+            let centre = &view.image.data[i * ch..(i + 1) * ch];
             (y.saturating_sub(radius)..(y + radius + 1).min(h)).all(|yy| {
                 (x.saturating_sub(radius)..(x + radius + 1).min(w)).all(|xx| {
-                    let other = &view.data[(yy * w + xx) * ch..][..ch];
+                    let other = &view.image.data[(yy * w + xx) * ch..][..ch];
                     other.iter().zip(centre).all(|(a, b)| {
                         (a - b).abs() <= k * (FLAT_RELATIVE * b.abs() + FLAT_ABSOLUTE)
                     })
@@ -519,7 +520,7 @@ fn lanczos(
     tap_ok: impl Fn(usize) -> bool,
     dst: &mut [f32],
 ) -> bool {
-    let (w, h, ch) = (view.width, view.height, view.channels);
+    let (w, h, ch) = (view.image.width, view.image.height, view.image.channels);
     let (x0, y0) = (px.floor(), py.floor());
     let (before, after) = (KERNEL_BEFORE as f64, (KERNEL_TAPS - KERNEL_BEFORE) as f64);
     if x0 < before || y0 < before || x0 + after > (w - 1) as f64 || y0 + after > (h - 1) as f64 {
@@ -542,7 +543,7 @@ fn lanczos(
                 return false;
             }
             let k = kx * ky;
-            for (o, &v) in dst.iter_mut().zip(&view.data[p * ch..][..ch]) {
+            for (o, &v) in dst.iter_mut().zip(&view.image.data[p * ch..][..ch]) {
                 *o += k * v;
             }
         }
@@ -552,7 +553,7 @@ fn lanczos(
 
 /// Bilinear sample of every channel of `view` at (px, py) into `out`; false outside.
 fn sample(view: &NormalisedView, px: f64, py: f64, out: &mut [f32]) -> bool {
-    let (w, h, ch) = (view.width, view.height, view.channels);
+    let (w, h, ch) = (view.image.width, view.image.height, view.image.channels);
     if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
         return false;
     }
@@ -561,7 +562,7 @@ fn sample(view: &NormalisedView, px: f64, py: f64, out: &mut [f32]) -> bool {
         *o = taps
             .iter()
             .filter(|&&(_, k)| k > 0.0)
-            .map(|&(p, k)| k * view.data[p * ch + c])
+            .map(|&(p, k)| k * view.image.data[p * ch + c])
             .sum();
     }
     out.iter().all(|v| v.is_finite())
@@ -613,10 +614,10 @@ fn flat_between(
     }
     let speed = sx.abs().max(sy.abs());
     let span_px = (high - low) as f64 * speed;
-    if span_px > MAX_FLAT_SPAN_PX || view.channels > MAX_CHANNELS {
+    if span_px > MAX_FLAT_SPAN_PX || view.image.channels > MAX_CHANNELS {
         return false;
     }
-    let ch = view.channels;
+    let ch = view.image.channels;
     let (mut centre, mut here) = ([0f32; MAX_CHANNELS], [0f32; MAX_CHANNELS]);
     let (px, py) = (x as f64 + sx * d as f64, y as f64 + sy * d as f64);
     if !sample(view, px, py, &mut centre[..ch]) {
@@ -684,18 +685,22 @@ mod tests {
             NormalisedView {
                 row: 0,
                 col: 0,
-                width: w,
-                height: h,
-                channels: 1,
-                data: (0..w * h).map(|i| value((i % w) as f32)).collect(),
+                image: Image {
+                    width: w,
+                    height: h,
+                    channels: 1,
+                    data: (0..w * h).map(|i| value((i % w) as f32)).collect(),
+                },
             },
             NormalisedView {
                 row: 0,
                 col: 1,
-                width: w,
-                height: h,
-                channels: 1,
-                data: right_data,
+                image: Image {
+                    width: w,
+                    height: h,
+                    channels: 1,
+                    data: right_data,
+                },
             },
         ];
         let Gathered {
@@ -748,16 +753,18 @@ mod tests {
                 NormalisedView {
                     row: r,
                     col: c,
-                    width: w,
-                    height: h,
-                    channels: 1,
                     // View (r, c) sees the reference's (x, y) at (x − c·d, y − r·d·1.3).
-                    data: (0..w * h)
-                        .map(|i| {
-                            let (x, y) = ((i % w) as f32, (i / w) as f32);
-                            texture(x + c as f32 * d, y + r as f32 * d * 1.3)
-                        })
-                        .collect(),
+                    image: Image {
+                        width: w,
+                        height: h,
+                        channels: 1,
+                        data: (0..w * h)
+                            .map(|i| {
+                                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                                texture(x + c as f32 * d, y + r as f32 * d * 1.3)
+                            })
+                            .collect(),
+                    },
                 }
             })
             .collect();
@@ -890,10 +897,12 @@ mod tests {
             .map(|(col, data)| NormalisedView {
                 row: 0,
                 col,
-                width: w,
-                height: h,
-                channels: 1,
-                data,
+                image: Image {
+                    width: w,
+                    height: h,
+                    channels: 1,
+                    data,
+                },
             })
             .collect();
         let gathered = gather_measurements(
@@ -953,18 +962,22 @@ mod tests {
             NormalisedView {
                 row: 0,
                 col: 0,
-                width: w,
-                height: 1,
-                channels: 1,
-                data: (0..w).map(|x| texture(x as f32)).collect(),
+                image: Image {
+                    width: w,
+                    height: 1,
+                    channels: 1,
+                    data: (0..w).map(|x| texture(x as f32)).collect(),
+                },
             },
             NormalisedView {
                 row: 0,
                 col: 1,
-                width: w,
-                height: 1,
-                channels: 1,
-                data: right,
+                image: Image {
+                    width: w,
+                    height: 1,
+                    channels: 1,
+                    data: right,
+                },
             },
         ];
         let right_d = (0..w).map(|x| if object(x) { 10.0 } else { 6.0 }).collect();
@@ -974,7 +987,7 @@ mod tests {
     #[test]
     fn the_depth_order_admits_a_period_off_map_as_disputed_but_not_a_hidden_occluder() {
         let (views, maps) = periodic_plane_and_a_hidden_object();
-        let w = views[0].width;
+        let w = views[0].image.width;
         let geometry = ArrayGeometry {
             rows: 1,
             cols: 2,
@@ -1013,9 +1026,9 @@ mod tests {
                 assert!(!gathered.disputed[x * 2 + 1], "x {x}");
             } else {
                 assert!(
-                    (got - views[0].data[x]).abs() < 1e-6,
+                    (got - views[0].image.data[x]).abs() < 1e-6,
                     "x {x}: {got} against {}",
-                    views[0].data[x]
+                    views[0].image.data[x]
                 );
                 assert!(gathered.disputed[x * 2 + 1], "x {x}");
             }

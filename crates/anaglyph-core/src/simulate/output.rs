@@ -18,6 +18,7 @@
 //! ```
 
 use super::{RenderedView, Simulation};
+use crate::image::Image;
 use crate::io::{
     write_atomically, write_envi, write_pfm, write_png16, EnviCube, LinearImage, PfmImage,
 };
@@ -133,17 +134,18 @@ fn write_view(
         width: w,
         height: h,
         channels: view.channels,
-        bit_depth: 16,
         data: data.to_vec(),
     };
     write_png16(&dir.join(&record.capture), &image(&view.capture))?;
     write_png16(&dir.join(&record.white), &image(&view.white))?;
     let cube = EnviCube {
-        width: w,
-        height: h,
-        bands: simulation.bands.len(),
+        image: Image {
+            width: w,
+            height: h,
+            channels: simulation.bands.len(),
+            data: view.truth.clone(),
+        },
         wavelengths: Some(simulation.bands.clone()),
-        data: view.truth.clone(),
     };
     write_envi(
         &dir.join(&record.truth),

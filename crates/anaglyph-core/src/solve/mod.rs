@@ -154,7 +154,7 @@ impl<'a> SolveContext<'a> {
             .iter()
             .scan(0, |row, view| {
                 let first = *row;
-                *row += view.channels;
+                *row += view.image.channels;
                 Some(first..*row)
             })
             .collect();

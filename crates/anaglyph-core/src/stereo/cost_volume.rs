@@ -3,19 +3,7 @@
 //! better. Stored pixel-major (`(y·w + x)·D + d`), so one pixel's costs are contiguous for
 //! the per-pixel scans of SGM and the winner-take-all.
 
-/// A single-channel image in row-major order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GreyImage {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<f32>,
-}
-
-impl GreyImage {
-    pub fn at(&self, x: usize, y: usize) -> f32 {
-        self.data[y * self.width + x]
-    }
-}
+pub use crate::image::GreyImage;
 
 /// Costs for `width × height` pixels and `max_disp` disparities.
 #[derive(Debug, Clone, PartialEq)]

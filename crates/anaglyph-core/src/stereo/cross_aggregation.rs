@@ -183,6 +183,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let (w, h, dm) = (23, 17, 6);
         let image = |rng: &mut ChaCha8Rng| GreyImage {
+            channels: 1,
             width: w,
             height: h,
             // Blocky values so that arms have varied lengths.

@@ -267,6 +267,7 @@ mod tests {
         let (w, h) = (17, 11);
         let map = random_map(&mut rng, w * h);
         let image = GreyImage {
+            channels: 1,
             width: w,
             height: h,
             data: (0..w * h).map(|_| rng.random_range(-1.0..1.0)).collect(),

@@ -73,6 +73,7 @@ pub fn normalise_image(image: &GreyImage) -> GreyImage {
         / n;
     let scale = if var > 0.0 { 1.0 / var.sqrt() } else { 0.0 };
     GreyImage {
+        channels: 1,
         width: image.width,
         height: image.height,
         data: image

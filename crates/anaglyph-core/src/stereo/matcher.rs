@@ -182,6 +182,7 @@ pub fn unit_range(image: &GreyImage) -> GreyImage {
     let (_, &mut hi, _) = sorted.select_nth_unstable_by(hi_index, f32::total_cmp);
     let span = if hi > lo { hi - lo } else { 1.0 };
     GreyImage {
+        channels: 1,
         width: image.width,
         height: image.height,
         data: image.data.iter().map(|&v| (v - lo) / span).collect(),
@@ -197,11 +198,11 @@ fn validate(left: &GreyImage, right: &GreyImage, max_disp: usize) -> Result<()> 
         });
     }
     for (name, image) in [("left", left), ("right", right)] {
-        if image.data.len() != image.width * image.height {
+        if image.channels != 1 || image.data.len() != image.width * image.height {
             return Err(Error::Shape {
-                op: format!("stereo matching: {name} image data"),
-                got: vec![image.data.len()],
-                expected: vec![image.width * image.height],
+                op: format!("stereo matching: {name} image channels and data"),
+                got: vec![image.channels, image.data.len()],
+                expected: vec![1, image.width * image.height],
             });
         }
         if let Some(bad) = image.data.iter().find(|v| !v.is_finite()) {
@@ -331,6 +332,7 @@ pub fn match_pair(
 pub fn transpose(image: &GreyImage) -> GreyImage {
     let (w, h) = (image.width, image.height);
     GreyImage {
+        channels: 1,
         width: h,
         height: w,
         data: (0..w * h)
@@ -350,6 +352,7 @@ pub fn match_vertical(
 ) -> Result<MatchOutput> {
     let out = match_pair(&transpose(top), &transpose(bottom), cost, settings)?;
     let transposed = GreyImage {
+        channels: 1,
         width: out.disparity.width,
         height: out.disparity.height,
         data: out.disparity.data,

@@ -144,11 +144,13 @@ mod tests {
             .map(|i| ((i * 37) % 101) as f32 / 100.0)
             .collect();
         let left = GreyImage {
+            channels: 1,
             width: w,
             height: 32,
             data: data.clone(),
         };
         let right = GreyImage {
+            channels: 1,
             width: w,
             height: 32,
             data: data.iter().map(|v| 1.0 - v).collect(),

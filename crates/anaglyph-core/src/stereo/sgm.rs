@@ -291,11 +291,13 @@ mod tests {
             data: (0..w * h * dm).map(|_| uniform(&mut seed)).collect(),
         };
         let image = GreyImage {
+            channels: 1,
             width: w,
             height: h,
             data: (0..w * h).map(|_| uniform(&mut seed)).collect(),
         };
         let right = GreyImage {
+            channels: 1,
             width: w,
             height: h,
             data: (0..w * h).map(|_| uniform(&mut seed)).collect(),

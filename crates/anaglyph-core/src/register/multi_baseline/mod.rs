@@ -131,6 +131,7 @@ fn match_views(
     let (w, h) = (images[0].image.width, images[0].image.height);
     let chain = MatchSettings::for_cost(&settings.cost, settings.max_disp);
     let flat = GreyImage {
+        channels: 1,
         width: w,
         height: h,
         data: vec![0.0; w * h],
