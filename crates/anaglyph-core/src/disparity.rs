@@ -176,11 +176,26 @@ mod tests {
             |axis| DisparityMap::new(1, 1, DisparityConvention::Pair { axis }, vec![2.0]).unwrap();
         let map = pair(PairAxis::Horizontal).into_column_step().unwrap();
         assert_eq!(map.convention, DisparityConvention::ColumnStep);
-        assert!(pair(PairAxis::Vertical).into_column_step().is_err());
+        assert_eq!(
+            pair(PairAxis::Vertical)
+                .into_column_step()
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
         assert!(map.check(1, 1, DisparityConvention::ColumnStep).is_ok());
-        assert!(map.check(2, 1, DisparityConvention::ColumnStep).is_err());
-        assert!(pair(PairAxis::Horizontal)
-            .check(1, 1, DisparityConvention::ColumnStep)
-            .is_err());
+        assert_eq!(
+            map.check(2, 1, DisparityConvention::ColumnStep)
+                .err()
+                .map(|e| e.kind()),
+            Some("Shape")
+        );
+        assert_eq!(
+            pair(PairAxis::Horizontal)
+                .check(1, 1, DisparityConvention::ColumnStep)
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
     }
 }

@@ -136,6 +136,33 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
+    /// The cause's name, stable across releases: what a caller (or a binding that maps
+    /// causes to exception types) matches on without parsing the message.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Error::Io { .. } => "Io",
+            Error::Parse { .. } => "Parse",
+            Error::BadField { .. } => "BadField",
+            Error::UnsupportedFormat { .. } => "UnsupportedFormat",
+            Error::FileSize { .. } => "FileSize",
+            Error::MissingFile { .. } => "MissingFile",
+            Error::NonFinite { .. } => "NonFinite",
+            Error::NotFound { .. } => "NotFound",
+            Error::Mismatch { .. } => "Mismatch",
+            Error::Unusable { .. } => "Unusable",
+            Error::Decode { .. } => "Decode",
+            Error::Output { .. } => "Output",
+            Error::CurveNotCovering { .. } => "CurveNotCovering",
+            Error::Shape { .. } => "Shape",
+            Error::TooLarge { .. } => "TooLarge",
+            Error::SingularNormalMatrix { .. } => "SingularNormalMatrix",
+            Error::OutOfRange { .. } => "OutOfRange",
+            Error::StageDependency { .. } => "StageDependency",
+            Error::LinearAlgebra { .. } => "LinearAlgebra",
+            Error::NoConvergence { .. } => "NoConvergence",
+        }
+    }
+
     pub(crate) fn decode(file: impl Into<PathBuf>, message: impl ToString) -> Self {
         Error::Decode {
             file: file.into(),

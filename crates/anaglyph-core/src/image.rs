@@ -86,7 +86,15 @@ mod tests {
             Image::new(2, 2, 3, vec![0; 6]),
             Err(Error::Shape { .. })
         ));
-        assert!(Image::<u8>::new(2, 2, 0, vec![]).is_err());
-        assert!(Image::<u8>::new(usize::MAX, 2, 1, vec![]).is_err());
+        assert_eq!(
+            Image::<u8>::new(2, 2, 0, vec![]).err().map(|e| e.kind()),
+            Some("Shape")
+        );
+        assert_eq!(
+            Image::<u8>::new(usize::MAX, 2, 1, vec![])
+                .err()
+                .map(|e| e.kind()),
+            Some("Shape")
+        );
     }
 }

@@ -402,7 +402,12 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
         "{v:?}"
     );
     only.views = Some(vec![(2, 0)]);
-    assert!(reconstruct(&rig, &captures, &only, &|_, _, _| {}).is_err());
+    assert_eq!(
+        reconstruct(&rig, &captures, &only, &|_, _, _| {})
+            .err()
+            .map(|e| e.kind()),
+        Some("NotFound")
+    );
 }
 
 #[test]

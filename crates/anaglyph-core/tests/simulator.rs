@@ -382,21 +382,40 @@ fn bad_simulation_settings_are_errors() {
         noise: None,
         ..SimulationSettings::default()
     };
-    for bad in [
-        SimulationSettings {
-            width: 0,
-            ..tiny.clone()
-        },
-        SimulationSettings {
-            supersampling: 0,
-            ..tiny.clone()
-        },
-        SimulationSettings {
-            white_reflectance: 1.5,
-            ..tiny.clone()
-        },
+    for (bad, cause) in [
+        (
+            SimulationSettings {
+                width: 0,
+                ..tiny.clone()
+            },
+            "Mismatch",
+        ),
+        (
+            SimulationSettings {
+                supersampling: 0,
+                ..tiny.clone()
+            },
+            "OutOfRange",
+        ),
+        (
+            SimulationSettings {
+                white_reflectance: 1.5,
+                ..tiny.clone()
+            },
+            "OutOfRange",
+        ),
+        (
+            SimulationSettings {
+                exposure_jitter: f64::NAN,
+                ..tiny.clone()
+            },
+            "OutOfRange",
+        ),
     ] {
-        assert!(Simulation::run(&rig, &scene, bad).is_err());
+        assert_eq!(
+            Simulation::run(&rig, &scene, bad).err().map(|e| e.kind()),
+            Some(cause)
+        );
     }
     let mut file = rig.file.clone();
     file.reconstruction.start_nm = 360.0;

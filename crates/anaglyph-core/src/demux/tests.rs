@@ -224,7 +224,12 @@ fn masked_measurements_equal_dropping_the_rows() {
 fn bad_input_is_an_error_not_a_panic() {
     let c = [1.0, 0.0, 0.0, 1.0];
     let o = options(Solver::Exact, 0.01);
-    assert!(demultiplex(&c, 2, &[1.0, 2.0, 3.0], None, 0..2, &o).is_err());
+    assert_eq!(
+        demultiplex(&c, 2, &[1.0, 2.0, 3.0], None, 0..2, &o)
+            .err()
+            .map(|e| e.kind()),
+        Some("Shape")
+    );
     let infinite = demultiplex(&c, 2, &[1.0, f64::INFINITY], None, 0..2, &o).unwrap_err();
     assert!(matches!(infinite, Error::Mismatch { .. }), "{infinite:?}");
     assert!(infinite.to_string().contains("infinite"));
@@ -243,8 +248,18 @@ fn bad_input_is_an_error_not_a_panic() {
         ),
         Err(Error::OutOfRange { .. })
     ));
-    assert!(demultiplex(&c, 2, &[1.0, 1.0], Some(&[true]), 0..2, &o).is_err());
-    assert!(demultiplex(&c, 2, &[1.0, 1.0], None, 0..3, &o).is_err());
+    assert_eq!(
+        demultiplex(&c, 2, &[1.0, 1.0], Some(&[true]), 0..2, &o)
+            .err()
+            .map(|e| e.kind()),
+        Some("Shape")
+    );
+    assert_eq!(
+        demultiplex(&c, 2, &[1.0, 1.0], None, 0..3, &o)
+            .err()
+            .map(|e| e.kind()),
+        Some("Mismatch")
+    );
     let singular = demultiplex(
         &[1.0, 1.0],
         1,

@@ -210,9 +210,18 @@ mod tests {
     fn mismatched_inputs_are_errors() {
         let a = ResponseCurve::from_csv_str("a", "wavelength_nm,x\n400,1\n500,1\n").unwrap();
         let b = ResponseCurve::from_csv_str("b", "wavelength_nm,x,y\n400,1,1\n500,1,1\n").unwrap();
-        assert!(calibrate_filter(&a, &b, 0.01).is_err());
-        assert!(calibrate_filter(&a, &a, 1.5).is_err());
+        assert_eq!(
+            calibrate_filter(&a, &b, 0.01).err().map(|e| e.kind()),
+            Some("Mismatch")
+        );
+        assert_eq!(
+            calibrate_filter(&a, &a, 1.5).err().map(|e| e.kind()),
+            Some("OutOfRange")
+        );
         let far = ResponseCurve::from_csv_str("c", "wavelength_nm,x\n600,1\n700,1\n").unwrap();
-        assert!(calibrate_filter(&a, &far, 0.01).is_err());
+        assert_eq!(
+            calibrate_filter(&a, &far, 0.01).err().map(|e| e.kind()),
+            Some("CurveNotCovering")
+        );
     }
 }

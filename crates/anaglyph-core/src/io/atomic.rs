@@ -55,7 +55,7 @@ mod tests {
             w.write_all(b"partial")?;
             Err(std::io::Error::other("disk full"))
         });
-        assert!(err.is_err());
+        assert_eq!(err.err().map(|e| e.kind()), Some("Io"));
         assert!(!path.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
         write_atomically(&path, |w| w.write_all(b"whole")).unwrap();

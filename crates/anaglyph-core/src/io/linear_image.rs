@@ -167,6 +167,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.png");
         std::fs::write(&path, b"not a png").unwrap();
-        assert!(read_linear_image(&path).is_err());
+        assert_eq!(
+            read_linear_image(&path).err().map(|e| e.kind()),
+            Some("Decode")
+        );
     }
 }

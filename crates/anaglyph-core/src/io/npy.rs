@@ -405,7 +405,10 @@ mod tests {
             streamed.extend_from_slice(&buffer[..rows * 3]);
         }
         assert_eq!(streamed, values);
-        assert!(reader.read_rows(&mut [0f64; 3]).is_err());
+        assert_eq!(
+            reader.read_rows(&mut [0f64; 3]).err().map(|e| e.kind()),
+            Some("Mismatch")
+        );
     }
 
     #[test]
@@ -442,7 +445,7 @@ mod tests {
             .contains("header declares"));
         let text = String::from_utf8_lossy(&bytes).replace("(4,)", "(9999999999999,)");
         std::fs::write(&p, text.as_bytes()).unwrap();
-        assert!(read_npy_f64(&p).is_err());
+        assert_eq!(read_npy_f64(&p).err().map(|e| e.kind()), Some("Parse"));
         std::fs::write(&p, b"hello").unwrap();
         assert!(read_npy_f64(&p).unwrap_err().to_string().contains("magic"));
     }

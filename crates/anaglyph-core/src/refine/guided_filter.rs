@@ -611,13 +611,17 @@ mod tests {
             }
         }
         let negative = vec![-1.0f32; w * h];
-        assert!(guided_filter(
-            &img(&guide, w, h, 1),
-            &img(&input, w, h, 1),
-            Some(&negative),
-            filter
-        )
-        .is_err());
+        assert_eq!(
+            guided_filter(
+                &img(&guide, w, h, 1),
+                &img(&input, w, h, 1),
+                Some(&negative),
+                filter
+            )
+            .err()
+            .map(|e| e.kind()),
+            Some("Mismatch")
+        );
     }
 
     #[test]
@@ -626,30 +630,42 @@ mod tests {
             radius: 1,
             epsilon: 1e-4,
         };
-        assert!(guided_filter(
-            &img(&[0.0; 4], 2, 2, 1),
-            &img(&[0.0; 3], 2, 2, 1),
-            None,
-            filter
-        )
-        .is_err());
-        assert!(guided_filter(
-            &img(&[0.0; 20], 2, 2, 5),
-            &img(&[0.0; 4], 2, 2, 1),
-            None,
-            filter
-        )
-        .is_err());
+        assert_eq!(
+            guided_filter(
+                &img(&[0.0; 4], 2, 2, 1),
+                &img(&[0.0; 3], 2, 2, 1),
+                None,
+                filter
+            )
+            .err()
+            .map(|e| e.kind()),
+            Some("Shape")
+        );
+        assert_eq!(
+            guided_filter(
+                &img(&[0.0; 20], 2, 2, 5),
+                &img(&[0.0; 4], 2, 2, 1),
+                None,
+                filter
+            )
+            .err()
+            .map(|e| e.kind()),
+            Some("Mismatch")
+        );
         let zero = GuidedFilter {
             epsilon: 0.0,
             ..filter
         };
-        assert!(guided_filter(
-            &img(&[0.0; 4], 2, 2, 1),
-            &img(&[0.0; 4], 2, 2, 1),
-            None,
-            zero
-        )
-        .is_err());
+        assert_eq!(
+            guided_filter(
+                &img(&[0.0; 4], 2, 2, 1),
+                &img(&[0.0; 4], 2, 2, 1),
+                None,
+                zero
+            )
+            .err()
+            .map(|e| e.kind()),
+            Some("OutOfRange")
+        );
     }
 }

@@ -306,8 +306,14 @@ mod tests {
         let mean = |s: &CommonSignal| s.correlation.iter().sum::<f64>() / 2.0;
         assert!(mean(&signals[1]) <= mean(leading) + 1e-9);
 
-        assert!(common_signals(&sensing, &[3, 2], 1).is_err());
-        assert!(common_signals(&sensing, &[6, 0], 1).is_err());
+        assert_eq!(
+            common_signals(&sensing, &[3, 2], 1).err().map(|e| e.kind()),
+            Some("Shape")
+        );
+        assert_eq!(
+            common_signals(&sensing, &[6, 0], 1).err().map(|e| e.kind()),
+            Some("Shape")
+        );
     }
 
     /// The images mix each view's channels by its weights; missing values take the row's

@@ -247,7 +247,13 @@ mod tests {
         let b = projection.merge(view_b.iter().cloned()).unwrap();
         // Merging maps already computed is the same merge; a wrong count is refused.
         assert_eq!(projection.merged_maps(view_b.to_vec()).unwrap(), b);
-        assert!(projection.merged_maps(view_b[..1].to_vec()).is_err());
+        assert_eq!(
+            projection
+                .merged_maps(view_b[..1].to_vec())
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
         for p in [0, 17, 199] {
             let expected = 0.5
                 * (cosine(view_a[0].pixel(p, 0), view_b[0].pixel(p, 0))
@@ -290,9 +296,18 @@ mod tests {
         // Fewer dimensions than the rank keep less than all of the energy.
         let smaller = FeatureProjection::fit(&[a.clone(), b.clone()], c).unwrap();
         assert!(smaller.energy_kept < 0.99, "{}", smaller.energy_kept);
-        assert!(FeatureProjection::fit(std::slice::from_ref(&a), c + 1).is_err());
-        assert!(projection
-            .merge([a.clone(), a.clone(), a].into_iter())
-            .is_err());
+        assert_eq!(
+            FeatureProjection::fit(std::slice::from_ref(&a), c + 1)
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
+        assert_eq!(
+            projection
+                .merge([a.clone(), a.clone(), a].into_iter())
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
     }
 }

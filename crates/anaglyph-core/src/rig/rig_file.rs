@@ -487,6 +487,9 @@ mod tests {
         assert!(err.contains("t.toml"), "{err}");
         let mut zero = Rig::paper_rig_file(&EIGHT);
         zero.baseline_mm.vertical = 0.0;
-        assert!(Rig::from_file(zero, ".".into()).is_err());
+        assert_eq!(
+            Rig::from_file(zero, ".".into()).err().map(|e| e.kind()),
+            Some("Mismatch")
+        );
     }
 }

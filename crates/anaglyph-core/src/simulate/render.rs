@@ -377,15 +377,18 @@ impl Simulation {
                 "1 to 8",
             ));
         }
-        let white_ok = settings.white_reflectance > 0.0 && settings.white_reflectance <= 1.0;
-        if !white_ok || !(0.0..1.0).contains(&settings.exposure_jitter) {
-            return Err(Error::mismatch(
-                "simulation",
-                format!(
-                    "white reflectance {} and exposure jitter {}",
-                    settings.white_reflectance, settings.exposure_jitter
-                ),
-                "a white reflectance in (0, 1] and an exposure jitter in [0, 1)",
+        if !(settings.white_reflectance > 0.0 && settings.white_reflectance <= 1.0) {
+            return Err(Error::out_of_range(
+                "simulation white reflectance",
+                settings.white_reflectance,
+                "(0, 1]",
+            ));
+        }
+        if !(0.0..1.0).contains(&settings.exposure_jitter) {
+            return Err(Error::out_of_range(
+                "simulation exposure jitter",
+                settings.exposure_jitter,
+                "[0, 1)",
             ));
         }
         let bands = rig.reconstruction_shape()?;

@@ -439,8 +439,16 @@ mod tests {
     #[test]
     fn sampling_outside_the_domain_is_an_error_not_zero() {
         let c = ResponseCurve::from_csv_str("f", "wavelength_nm,t\n400,1\n700,1\n").unwrap();
-        assert!(c.sample(0, &[399.0], Interpolation::Linear).is_err());
-        assert!(c.integrate(0, 390.0, 500.0).is_err());
+        assert_eq!(
+            c.sample(0, &[399.0], Interpolation::Linear)
+                .err()
+                .map(|e| e.kind()),
+            Some("CurveNotCovering")
+        );
+        assert_eq!(
+            c.integrate(0, 390.0, 500.0).err().map(|e| e.kind()),
+            Some("CurveNotCovering")
+        );
         let err = c
             .resample(
                 &SpectralShape::new(380.0, 5.0, 10).unwrap(),

@@ -136,9 +136,25 @@ mod tests {
     fn from_range_counts_inclusive_and_rejects_fractional_steps() {
         let s = SpectralShape::from_range(400.0, 700.0, 5.0).unwrap();
         assert_eq!(s.count, 61);
-        assert!(SpectralShape::from_range(400.0, 701.0, 5.0).is_err());
-        assert!(SpectralShape::new(400.0, 0.0, 3).is_err());
-        assert!(SpectralShape::new(400.0, f64::NAN, 3).is_err());
-        assert!(SpectralShape::new(400.0, 1.0, 0).is_err());
+        assert_eq!(
+            SpectralShape::from_range(400.0, 701.0, 5.0)
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
+        assert_eq!(
+            SpectralShape::new(400.0, 0.0, 3).err().map(|e| e.kind()),
+            Some("Mismatch")
+        );
+        assert_eq!(
+            SpectralShape::new(400.0, f64::NAN, 3)
+                .err()
+                .map(|e| e.kind()),
+            Some("Mismatch")
+        );
+        assert_eq!(
+            SpectralShape::new(400.0, 1.0, 0).err().map(|e| e.kind()),
+            Some("OutOfRange")
+        );
     }
 }

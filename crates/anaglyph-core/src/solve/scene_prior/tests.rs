@@ -159,27 +159,54 @@ fn too_few_complete_pixels_give_no_prior_and_bad_input_is_refused() {
             .unwrap()
             .is_none()
     );
-    assert!(ScenePrior::learn(6, 6, &measurements, &spectra[1..], &residuals, 1).is_err());
-    assert!(ScenePrior::learn(6, 6, &measurements, &spectra, &residuals[1..], 1).is_err());
+    assert_eq!(
+        ScenePrior::learn(6, 6, &measurements, &spectra[1..], &residuals, 1)
+            .err()
+            .map(|e| e.kind()),
+        Some("Shape")
+    );
+    assert_eq!(
+        ScenePrior::learn(6, 6, &measurements, &spectra, &residuals[1..], 1)
+            .err()
+            .map(|e| e.kind()),
+        Some("Shape")
+    );
     let (_, m, s, _) = low_rank_scene(3000);
     let prior = ScenePrior::learn(6, 6, &m, &s, &vec![0.0; 3000], 1)
         .unwrap()
         .unwrap();
-    assert!(prior
-        .fill_incomplete(&matrix(6, c.clone()), &measurements, &mut spectra, 0.0)
-        .is_err());
-    assert!(prior
-        .fill_incomplete(&matrix(6, c.clone()), &measurements, &mut spectra, f64::NAN)
-        .is_err());
-    assert!(prior
-        .fill_incomplete(
-            &matrix(6, c[..30].to_vec()),
-            &measurements,
-            &mut spectra,
-            1.0
-        )
-        .is_err());
-    assert!(ScenePrior::learn(6, 6, &m, &s, &vec![0.0; 3000], 0).is_err());
+    assert_eq!(
+        prior
+            .fill_incomplete(&matrix(6, c.clone()), &measurements, &mut spectra, 0.0)
+            .err()
+            .map(|e| e.kind()),
+        Some("OutOfRange")
+    );
+    assert_eq!(
+        prior
+            .fill_incomplete(&matrix(6, c.clone()), &measurements, &mut spectra, f64::NAN)
+            .err()
+            .map(|e| e.kind()),
+        Some("OutOfRange")
+    );
+    assert_eq!(
+        prior
+            .fill_incomplete(
+                &matrix(6, c[..30].to_vec()),
+                &measurements,
+                &mut spectra,
+                1.0
+            )
+            .err()
+            .map(|e| e.kind()),
+        Some("Shape")
+    );
+    assert_eq!(
+        ScenePrior::learn(6, 6, &m, &s, &vec![0.0; 3000], 0)
+            .err()
+            .map(|e| e.kind()),
+        Some("OutOfRange")
+    );
 }
 
 /// Two materials on 6 knots, each varying along its own direction, seen through 6
