@@ -262,9 +262,14 @@ pub struct SimulateArgs {
     /// Without it every colour gets the mean measured spectrum of that colour.
     #[arg(long, value_parser = parse_metamers)]
     pub metamers: Option<(f64, f64)>,
-    /// Output folder (created; files in it are replaced).
+    /// Output folder, written whole at the end (a killed run leaves the previous folder
+    /// as it was).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the output folder even if anaglyph did not write it (a folder anaglyph
+    /// wrote is replaced whole without asking; one holding the inputs never is).
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -278,9 +283,14 @@ pub struct DemoArgs {
     /// Write the measured figures as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Output folder of the simulations, reconstructions and report.html.
+    /// Output folder of the simulations, reconstructions and report.html, written whole
+    /// at the end.
     #[arg(long, default_value = "anaglyph-demo")]
     pub out: PathBuf,
+    /// Replace the output folder even if anaglyph did not write it (a folder anaglyph
+    /// wrote is replaced whole without asking; one holding the inputs never is).
+    #[arg(long)]
+    pub force: bool,
     /// Image size of the simulated scenes (the focal length follows, keeping the field of
     /// view of the paper rig at 640×480).
     #[arg(long, default_value = "320x240", value_parser = parse_size)]
@@ -615,9 +625,14 @@ pub struct ReconstructArgs {
     /// Rig file (TOML) naming each camera's filter, sensor, capture and white board.
     #[arg(long)]
     pub rig: PathBuf,
-    /// Output folder (views/, disparity/, preview/, probes/, manifest.json).
+    /// Output folder (views/, disparity/, preview/, probes/, manifest.json), written
+    /// whole at the end: a killed run leaves the previous folder as it was.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the output folder even if anaglyph did not write it (a folder anaglyph
+    /// wrote is replaced whole without asking; one holding the inputs never is).
+    #[arg(long)]
+    pub force: bool,
     /// Folder of captures named r{row}c{col}.png|tif (default: the rig's `image` paths).
     #[arg(long)]
     pub captures: Option<PathBuf>,
@@ -631,8 +646,8 @@ pub struct ReconstructArgs {
     /// Views to reconstruct: `all` or a list like r0c0,r1c2.
     #[arg(long, default_value = "all", value_parser = parse_views)]
     pub views: ViewList,
-    /// Scene illuminant (CSV or builtin:<name>) folded into C instead of the rig's; needed
-    /// with exposure metadata when there is no white board.
+    /// Scene illuminant (CSV, builtin:<name>, or `none` for white boards only) folded into
+    /// C instead of the rig's; needed with exposure metadata when there is no white board.
     #[arg(long)]
     pub illuminant: Option<String>,
     /// Disparities searched per column step: [0, N), or `auto` to choose N from a coarse

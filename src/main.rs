@@ -10,6 +10,7 @@ use clap::Parser;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    exit_quietly_when_output_closes();
     let args = cli::Args::parse();
     let filter = match args.verbose {
         0 => "warn",
@@ -29,6 +30,17 @@ fn main() -> ExitCode {
             eprintln!("error: {}", describe(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// A closed standard output (`anaglyph rig show rig.toml | head`) ends the process as
+/// it ends `cat` or `grep`, by SIGPIPE, instead of a panic on the next print: Rust
+/// ignores SIGPIPE by default, this restores the system's default action.
+fn exit_quietly_when_output_closes() {
+    #[cfg(unix)]
+    // SAFETY: called first in main, before any thread exists; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 

@@ -7,6 +7,9 @@ use anaglyph_core::spectrum::ResponseCurve;
 use std::path::Path;
 use std::process::{Command, Output};
 
+#[path = "cli/bad_input.rs"]
+mod bad_input;
+
 fn anaglyph(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_anaglyph"))
         .args(args)

@@ -7,8 +7,8 @@
 
 use super::demo_light_field::{run_presets, PresetResult};
 use super::demo_report::{write_report, ReportInputs};
-use super::format_seconds;
 use super::select_filters::{load_candidates, print_report, run_selection, SelectionInputs};
+use super::{begin_output, check_output_file, format_seconds};
 use crate::cli::DemoArgs;
 use anaglyph_core::builtin;
 use anaglyph_core::capture::CameraNoise;
@@ -24,6 +24,7 @@ use anaglyph_core::stereo::{match_pair, GreyImage, MatchSettings, MatchingCost, 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use std::path::Path;
 use std::time::Instant;
 
 /// Measured reflectance sets pushed through the rig.
@@ -196,6 +197,11 @@ fn print_table(title: &str, result: &TrialResult, centres: &[f64]) {
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let total = Instant::now();
+    if let Some(path) = &args.json {
+        check_output_file(path, "--json")?;
+    }
+    let folder = begin_output(&args.out, args.force, &[] as &[&Path])?;
+    let out = folder.path();
     println!("anaglyph demo: the spectral core end to end (paper sections 2.3, 3.2, 4.1c-d)\n");
     let selected = select_paper_rig()?;
     let names: Vec<&str> = selected.filters.iter().map(String::as_str).collect();
@@ -205,15 +211,15 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let out_of_band = core.compare_out_of_band()?;
     let solvers = core.compare_solvers()?;
     let (noise_filters, noise_psnr) = core.select_by_noise(&selected, all.psnr)?;
-    let (presets, simulation) = light_fields(&args, &names)?;
+    let (presets, simulation) = light_fields(&args, out, &names)?;
     let (width, _) = args.size;
     let stereo = stereo_section(&simulation, (width / 10).max(8))?;
     let noise_in_c = noise_in_c_section(&core, args.seed)?;
     let filters = selected.filters.clone();
-    let chart_svgs = write_chart_spectra(&args.out, &colorchecker, &core.chart, &core.centres)?;
+    let chart_svgs = write_chart_spectra(out, &colorchecker, &core.chart, &core.centres)?;
     let noise_svg = "noise_in_c.svg";
     plot_series(
-        &args.out.join(noise_svg),
+        &out.join(noise_svg),
         "PSNR against noise in C (Fig. 8a)",
         ("σ / max C", "PSNR (dB)"),
         &[("all reflectances".to_string(), noise_in_c.clone())],
@@ -230,7 +236,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         })
         .collect();
     write_report(
-        &args.out,
+        out,
         &ReportInputs {
             filters: &filters,
             condition_number: core.cond,
@@ -246,7 +252,16 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             seconds: total.elapsed().as_secs_f64(),
         },
     )?;
-    println!("\nreport: {}", args.out.join("report.html").display());
+    folder.write_manifest(&serde_json::json!({
+        "generator": format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
+        "command": "demo",
+        "size": args.size,
+        "seed": args.seed,
+        "filters": &filters,
+        "seconds": total.elapsed().as_secs_f64(),
+    }))?;
+    let out = folder.commit()?;
+    println!("\nreport: {}", out.join("report.html").display());
     println!(
         "\ndemo finished in {}",
         format_seconds(total.elapsed().as_secs_f64())
@@ -532,6 +547,7 @@ impl SpectralCore {
 /// true disparities.
 fn light_fields(
     args: &DemoArgs,
+    out: &Path,
     filters: &[&str],
 ) -> anyhow::Result<(Vec<PresetResult>, Simulation)> {
     let (width, height) = args.size;
@@ -544,8 +560,7 @@ fn light_fields(
         "   pixels some camera misses estimated under the scene's own spectral prior, each view refined"
     );
     println!("   by a guided filter on its own capture");
-    std::fs::create_dir_all(&args.out)?;
-    let (presets, simulation) = run_presets(&args.out, filters, args.size, args.seed)?;
+    let (presets, simulation) = run_presets(out, filters, args.size, args.seed)?;
     println!("   (agreement: the lowest over the views of the fraction of disparities a neighbouring view's map confirms)");
     println!("   scene       r0c0 PSNR / SSIM (estimated)   r0c0 PSNR / SSIM (true disparity)   8 views PSNR est. / true   bad-2   agreement   time");
     for p in &presets {

@@ -5,6 +5,7 @@
 
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
 use anaglyph_core::io::write_disparity_preview;
+use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
 };
@@ -132,14 +133,15 @@ pub fn run_presets(
         };
         let start = Instant::now();
         let simulation = Simulation::run(&rig, &scene, settings)?;
-        let sim_dir = out.join(name).join("sim");
+        let sim_folder = OutputFolder::begin(&out.join(name).join("sim"), Replace::OwnOutput, &[])?;
         write_simulation(
-            &sim_dir,
+            &sim_folder,
             &rig,
             &scene_file,
             &simulation,
             start.elapsed().as_secs_f64(),
         )?;
+        let sim_dir = sim_folder.commit()?;
         let captures = ArrayCaptures::from_simulation(&simulation);
         let max_disp = search_range(&simulation);
         let mut pipeline = PipelineSettings {
@@ -170,7 +172,9 @@ pub fn run_presets(
             }),
             loading_seconds: 0.0,
         };
-        write_light_field(&out.join(name).join("recon"), &rig, &field, &options)?;
+        let recon = OutputFolder::begin(&out.join(name).join("recon"), Replace::OwnOutput, &[])?;
+        write_light_field(&recon, &rig, &field, &options)?;
+        recon.commit()?;
         let truth_map = &simulation.views[0].disparity;
         // The scale of the reconstruction's own previews, so that colours compare.
         let max_true = field

@@ -2,11 +2,13 @@
 //! layout of the paper's Table 1 (PSNR and SSIM per band and averaged, per view), plus the
 //! spectral angle, over all pixels and over the pixels every camera sees.
 
+use super::check_output_file;
 use crate::cli::EvalArgs;
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
-use anaglyph_core::io::{read_envi, read_pfm, write_atomically};
+use anaglyph_core::io::{read_envi, read_pfm, verify_output_folder, write_atomically};
 use anaglyph_core::register::ArrayGeometry;
 use anaglyph_core::rig::Rig;
+use anyhow::Context;
 use serde::Serialize;
 use std::path::Path;
 
@@ -49,6 +51,10 @@ fn print_bands(label: &str, centres: &[f64], values: &[f64], digits: usize) {
 
 /// Scores every view found in `recon/views` against `truth`.
 pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
+    for dir in [truth, recon] {
+        verify_output_folder(dir)
+            .with_context(|| format!("{}: not one run's complete output", dir.display()))?;
+    }
     let rig = Rig::load(&truth.join("rig.toml"))?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
@@ -140,6 +146,9 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    if let Some(path) = &args.json {
+        check_output_file(path, "--json")?;
+    }
     let report = evaluate(&args.truth, &args.recon)?;
     println!("Reflectance against the truth (PSNR in dB, peak 1; SSIM 11×11 Gaussian, as the paper's Table 1)");
     for v in &report.views {

@@ -2,7 +2,7 @@
 //! written as PFM (+inf where invalid), with an optional colour-mapped preview and a JSON
 //! report of the settings and per-stage timings.
 
-use super::format_seconds;
+use super::{check_output_file, format_seconds};
 use crate::cli::{ChannelChoice, LeftRightChoice, MatchArgs, MatchMethod};
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
@@ -103,6 +103,13 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             "--max-disp {max_disp} exceeds the image width {}",
             left.width
         );
+    }
+    check_output_file(&args.out, "--out")?;
+    let side_outputs = [("--preview", &args.preview), ("--report", &args.report)];
+    for (option, path) in side_outputs {
+        if let Some(path) = path {
+            check_output_file(path, option)?;
+        }
     }
     let network = load_network(args.method, args.model.as_deref())?;
     let cost = matching_cost(args.method, network.as_ref())?;

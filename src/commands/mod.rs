@@ -45,6 +45,61 @@ pub fn optional_curve(
     )?))
 }
 
+/// Opens the output folder `out` before any work (see `OutputFolder::begin`): `force`
+/// allows replacing a folder anaglyph did not write; `inputs` may never lie inside it.
+pub fn begin_output(
+    out: &std::path::Path,
+    force: bool,
+    inputs: &[impl AsRef<std::path::Path>],
+) -> anyhow::Result<anaglyph_core::io::OutputFolder> {
+    use anaglyph_core::io::{OutputFolder, Replace};
+    let replace = if force {
+        Replace::Anything
+    } else {
+        Replace::OwnOutput
+    };
+    let inputs: Vec<&std::path::Path> = inputs.iter().map(AsRef::as_ref).collect();
+    Ok(OutputFolder::begin(out, replace, &inputs)?)
+}
+
+/// Checks, before any work, that a file can be written at `path` (given as `option`):
+/// not a folder, in a folder that exists and takes new files. Leaves nothing behind.
+pub fn check_output_file(path: &std::path::Path, option: &str) -> anyhow::Result<()> {
+    if path.is_dir() {
+        anyhow::bail!(
+            "{option} {}: is a folder (expected a file to write)",
+            path.display()
+        );
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    if !parent.is_dir() {
+        anyhow::bail!(
+            "{option} {}: the folder {} does not exist (expected an existing folder)",
+            path.display(),
+            parent.display()
+        );
+    }
+    let probe = parent.join(format!(".anaglyph-write-check-{}", std::process::id()));
+    std::fs::write(&probe, b"")
+        .map_err(|e| anyhow::anyhow!("{option} {}: cannot write there: {e}", path.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Every file a rig names (captures, white boards, calibrations) and the rig's folder's
+/// files, resolved: the inputs an output folder must not hold.
+pub fn rig_inputs(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf> {
+    rig.cameras
+        .iter()
+        .flat_map(|c| [&c.image, &c.white, &c.calibration])
+        .flatten()
+        .map(|p| rig.base_dir.join(p))
+        .collect()
+}
+
 /// Formats a duration in the unit a reader expects.
 pub fn format_seconds(seconds: f64) -> String {
     if seconds < 1e-3 {

@@ -2,8 +2,8 @@
 //! output layout of `anaglyph_core::reconstruct::write_light_field`, with a progress bar
 //! per stage.
 
-use super::format_seconds;
 use super::match_pair::{load_network, matching_cost};
+use super::{begin_output, format_seconds, optional_curve, rig_inputs};
 use crate::cli::{
     MatchingImageChoice, PresetChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg,
     TuningArgs, ViewList, WarpKernelChoice,
@@ -16,12 +16,12 @@ use anaglyph_core::reconstruct::{
 };
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
-use anaglyph_core::rig::{resolve_curve, Rig};
+use anaglyph_core::rig::Rig;
 use anaglyph_core::solve::{ScenePriorSettings, SolveSettings};
 use anaglyph_core::stereo::MatchingCost;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The simulator's true disparity maps in rig order (per column step of the array).
@@ -62,18 +62,34 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let mut settings = pipeline_settings(&args, cost);
     settings.validate()?;
     let rig = load_rig(&args)?;
+    let folder = begin_output(&args.out, args.force, &input_paths(&args, &rig))?;
     let captures = ArrayCaptures::load(
         &rig,
         args.captures.as_deref(),
         args.white.as_deref(),
         args.calibration.as_deref(),
     )?;
+    let options = OutputOptions {
+        probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
+        truth: args.truth.clone(),
+        parameters: manifest_parameters(&args, &rig, &settings),
+        loading_seconds: 0.0,
+    };
+    let views = settings
+        .views
+        .clone()
+        .unwrap_or_else(|| rig.cameras.iter().map(|c| (c.row, c.col)).collect());
+    let bands = rig.reconstruction_shape()?.count;
+    options.check(captures.width, captures.height, bands, &views)?;
     if let Some(dir) = &args.true_disparity {
         let maps = true_disparities(dir, &rig, captures.width, captures.height)?;
         settings.given_disparities = Some(maps);
         settings.automatic_search_range = false;
     }
-    let loading = started.elapsed().as_secs_f64();
+    let options = OutputOptions {
+        loading_seconds: started.elapsed().as_secs_f64(),
+        ..options
+    };
     let bar = stage_bar();
     let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
         bar.set_message(match stage {
@@ -85,34 +101,46 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         bar.set_position(done as u64);
     })?;
     bar.finish_and_clear();
-    let options = OutputOptions {
-        probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
-        truth: args.truth.clone(),
-        parameters: manifest_parameters(&args, &rig, &settings),
-        loading_seconds: loading,
-    };
-    let files = write_light_field(&args.out, &rig, &field, &options)?;
+    let count = write_light_field(&folder, &rig, &field, &options)?;
+    let out = folder.commit()?;
     print_summary(&field);
     println!(
-        "wrote {} files under {} in {}",
-        files.len(),
-        args.out.display(),
+        "wrote {count} files under {} in {}",
+        out.display(),
         format_seconds(started.elapsed().as_secs_f64())
     );
     Ok(())
 }
 
-/// The rig, with `--illuminant` folded in.
+/// Every path the run reads, which the output folder must not hold.
+fn input_paths(args: &ReconstructArgs, rig: &Rig) -> Vec<PathBuf> {
+    let given = [
+        Some(&args.rig),
+        args.captures.as_ref(),
+        args.white.as_ref(),
+        args.calibration.as_ref(),
+        args.truth.as_ref(),
+        args.true_disparity.as_ref(),
+        args.registration.model.as_ref(),
+    ];
+    let mut paths: Vec<PathBuf> = given.into_iter().flatten().cloned().collect();
+    paths.extend(rig_inputs(rig));
+    paths
+}
+
+/// The rig, with `--illuminant` folded in (`none`: no illuminant, white boards only).
 fn load_rig(args: &ReconstructArgs) -> anyhow::Result<Rig> {
     let mut rig = Rig::load(&args.rig)?;
     if let Some(reference) = &args.illuminant {
-        let light = resolve_curve(reference, Path::new("."))
-            .with_context(|| format!("--illuminant {reference}"))?;
-        for cam in &rig.cameras {
-            let (lo, hi) = cam.sensor.domain();
-            light.check_covers(lo, hi)?;
+        let light =
+            optional_curve(reference).with_context(|| format!("--illuminant {reference}"))?;
+        if let Some(light) = &light {
+            for cam in &rig.cameras {
+                let (lo, hi) = cam.sensor.domain();
+                light.check_covers(lo, hi)?;
+            }
         }
-        rig.illuminant = Some(light);
+        rig.illuminant = light;
     }
     Ok(rig)
 }

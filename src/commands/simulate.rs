@@ -1,6 +1,6 @@
 //! `anaglyph simulate`: a scene rendered through a rig into the simulator's file layout.
 
-use super::format_seconds;
+use super::{begin_output, format_seconds, rig_inputs};
 use crate::cli::SimulateArgs;
 use crate::progress::spinner;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
@@ -41,6 +41,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     };
     let (file, base) = load_scene(&args.scene, args.seed)?;
     let scene = Scene::resolve(file.clone(), &base)?;
+    let mut inputs = rig_inputs(&rig);
+    inputs.extend(args.rig.clone());
+    inputs.push(Path::new(&args.scene).to_path_buf());
+    let folder = begin_output(&args.out, args.force, &inputs)?;
     let mut settings = SimulationSettings {
         width: args.size.0,
         height: args.size.1,
@@ -72,7 +76,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let simulation = Simulation::run(&rig, &scene, settings)?;
     let rendered = start.elapsed().as_secs_f64();
     bar.set_message("writing files");
-    let files = write_simulation(&args.out, &rig, &file, &simulation, rendered)?;
+    let count = write_simulation(&folder, &rig, &file, &simulation, rendered)?;
+    let out = folder.commit()?;
     bar.finish_and_clear();
     let saturated: usize = simulation.views.iter().map(|v| v.saturated).sum();
     let (dmin, dmax) = simulation
@@ -97,6 +102,6 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         "disparity {dmin:.1}–{dmax:.1} px per column step; exposures {}; {saturated} saturated values",
         simulation.views.iter().map(|v| format!("{:.2}", v.exposure)).collect::<Vec<_>>().join(" ")
     );
-    println!("wrote {} files under {}", files.len(), args.out.display());
+    println!("wrote {count} files under {}", out.display());
     Ok(())
 }

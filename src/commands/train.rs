@@ -2,7 +2,7 @@
 //! progress bar and the held-out validation printed as it goes; writes safetensors with
 //! the recipe in the metadata.
 
-use super::format_seconds;
+use super::{check_output_file, format_seconds};
 use crate::cli::{ArchitectureChoice, TrainArgs};
 use anaglyph_cnn::{train, Architecture, TrainSettings};
 use anaglyph_core::io::write_atomically;
@@ -25,12 +25,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         settings.learning_rate = lr;
     }
-    if let Some(parent) = args.out.parent() {
-        if !parent.as_os_str().is_empty() && !parent.is_dir() {
+    check_output_file(&args.out, "--out")?;
+    if let Some(path) = &args.curve {
+        check_output_file(path, "--curve")?;
+        if path == &args.out {
             anyhow::bail!(
-                "--out {}: folder {} does not exist",
-                args.out.display(),
-                parent.display()
+                "--curve {}: the same file as --out (expected another file)",
+                path.display()
             );
         }
     }

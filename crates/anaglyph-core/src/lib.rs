@@ -45,6 +45,7 @@ pub mod filters;
 pub mod image;
 pub mod interpolation;
 pub mod io;
+pub mod memory;
 pub mod metrics;
 pub mod reconstruct;
 pub mod rectify;

@@ -6,6 +6,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use anaglyph_core::evaluation::score_cube;
+use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
 use anaglyph_core::rectify::Rectification;
 use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
@@ -119,11 +120,14 @@ fn quadrant_means(blocks: &[[f64; 4]]) -> Vec<(usize, f64)> {
 fn rotated_cameras_are_resampled_onto_the_ideal_image_plane() {
     let jittered = simulate(Some(JITTER), false);
     let ideal = simulate(None, false);
-    let dir = tempfile::tempdir().unwrap();
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("sim");
     let scene = SceneFile::preset("tabletop").unwrap();
-    write_simulation(dir.path(), &rig(), &scene, &jittered, 0.0).unwrap();
+    let folder = OutputFolder::begin(&dir, Replace::OwnOutput, &[]).unwrap();
+    write_simulation(&folder, &rig(), &scene, &jittered, 0.0).unwrap();
+    folder.commit().unwrap();
     // The rig file the simulator wrote names each camera's calibration file.
-    let loaded = Rig::load(&dir.path().join("rig.toml")).unwrap();
+    let loaded = Rig::load(&dir.join("rig.toml")).unwrap();
     let captures = ArrayCaptures::load(&loaded, None, None, None).unwrap();
     let models = captures
         .cameras

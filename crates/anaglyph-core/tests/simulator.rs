@@ -7,6 +7,7 @@
 
 use anaglyph_core::builtin;
 use anaglyph_core::capture::CameraNoise;
+use anaglyph_core::io::{verify_output_folder, OutputFolder, Replace};
 use anaglyph_core::rig::{EffectiveResponses, Rig, SensingMatrix, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile, Shape};
 use anaglyph_core::simulate::{
@@ -305,22 +306,29 @@ fn captures_carry_the_modelled_noise_and_the_same_seed_gives_the_same_bytes() {
             "channel {k}: sd {sd} model {want}"
         );
     }
-    let dir_a = tempfile::tempdir().unwrap();
-    let dir_b = tempfile::tempdir().unwrap();
-    write_simulation(dir_a.path(), &rig, &scene.file, &sim, 0.0).unwrap();
+    let root = tempfile::tempdir().unwrap();
+    let (a, b) = (root.path().join("a"), root.path().join("b"));
+    write_folder(&a, &rig, &scene.file, &sim);
     let (_, _, again) = simulate("tabletop", Some(noise), 5);
-    let files = write_simulation(dir_b.path(), &rig, &scene.file, &again, 0.0).unwrap();
-    for file in files {
-        let name = file.strip_prefix(dir_b.path()).unwrap();
-        assert_eq!(
-            std::fs::read(dir_a.path().join(name)).unwrap(),
-            std::fs::read(&file).unwrap(),
-            "{}",
-            name.display()
-        );
-    }
+    write_folder(&b, &rig, &scene.file, &again);
+    let (a, b) = (
+        verify_output_folder(&a).unwrap(),
+        verify_output_folder(&b).unwrap(),
+    );
+    assert_ne!(a.run_id, b.run_id);
+    assert_eq!(
+        a.files, b.files,
+        "every file byte-identical (sizes and CRC-32)"
+    );
     let (_, _, other) = simulate("tabletop", Some(noise), 6);
     assert_ne!(view(&other, 0, 0).capture, v.capture);
+}
+
+/// The simulation written and committed as folder `dir`.
+fn write_folder(dir: &Path, rig: &Rig, scene: &SceneFile, simulation: &Simulation) {
+    let folder = OutputFolder::begin(dir, Replace::OwnOutput, &[]).unwrap();
+    write_simulation(&folder, rig, scene, simulation, 0.0).unwrap();
+    folder.commit().unwrap();
 }
 
 #[test]

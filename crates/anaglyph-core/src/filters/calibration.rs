@@ -110,6 +110,17 @@ pub fn calibrate_filter(
         t.push(ratio);
     }
     let max_t = t.iter().cloned().fold(0.0, f64::max);
+    if !(max_t > 0.0) {
+        return Err(Error::unusable(
+            format!("filter reading '{}'", with.name()),
+            format!(
+                "the transmission it gives is zero at all {} wavelengths ({clamped} ratios to \
+                 the reference negative; expected a positive transmission somewhere): readings \
+                 of opposite sign, or a dark reading in place of the filter's?",
+                t.len()
+            ),
+        ));
+    }
     let transmission = ResponseCurve::new(
         with.name(),
         wavelengths,
@@ -222,6 +233,15 @@ mod tests {
         assert_eq!(
             calibrate_filter(&a, &far, 0.01).err().map(|e| e.kind()),
             Some("CurveNotCovering")
+        );
+        let negative =
+            ResponseCurve::from_csv_str("n", "wavelength_nm,x\n400,-1\n500,-2\n").unwrap();
+        let refused = calibrate_filter(&a, &negative, 0.01).err();
+        let message = refused.as_ref().map(|e| e.to_string()).unwrap_or_default();
+        assert_eq!(refused.map(|e| e.kind()), Some("Unusable"));
+        assert!(
+            message.contains("zero at all 2 wavelengths (2 ratios"),
+            "{message}"
         );
     }
 }

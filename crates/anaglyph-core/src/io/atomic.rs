@@ -1,6 +1,7 @@
 //! Crash-safe output: write into a temporary file beside the target, flush, then
 //! rename over it, so readers see the old file or the whole new one, never a part, even
-//! when anaglyph is killed mid-write. (There is no fsync: durability across a power loss
+//! when anaglyph is killed mid-write. What a killed write left (`.NAME.tmp-PID` of a
+//! process that no longer runs) is removed by the next write of the same file. (There is no fsync: durability across a power loss
 //! is left to the operating system, as numpy and most tools do; an fsync of a 400 MB
 //! cube cost about a second here.)
 
@@ -24,11 +25,9 @@ pub fn write_atomically(
             "a path to a file",
         )
     })?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        file_name.to_string_lossy(),
-        std::process::id()
-    ));
+    let prefix = format!(".{}.tmp-", file_name.to_string_lossy());
+    remove_stale(dir, &prefix);
+    let tmp = dir.join(format!("{prefix}{}", std::process::id()));
     let result = (|| -> std::io::Result<()> {
         let file = std::fs::File::create(&tmp)?;
         let mut writer = BufWriter::new(file);
@@ -41,6 +40,22 @@ pub fn write_atomically(
         return Err(Error::io(path, e));
     }
     Ok(())
+}
+
+/// Removes `PREFIX{pid}` files in `dir` of processes that no longer run.
+fn remove_stale(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix(prefix)
+            .and_then(|p| p.parse::<u32>().ok());
+        if pid.is_some_and(|pid| !super::output_folder::process_is_running(pid)) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 #[cfg(test)]
@@ -60,5 +75,16 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
         write_atomically(&path, |w| w.write_all(b"whole")).unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), b"whole");
+    }
+
+    #[test]
+    fn what_a_killed_write_left_is_removed_by_the_next() {
+        let dir = tempfile::tempdir().unwrap();
+        let killed = dir.path().join(".out.bin.tmp-4294967295");
+        let other = dir.path().join(".other.bin.tmp-4294967295");
+        std::fs::write(&killed, b"half").unwrap();
+        std::fs::write(&other, b"half").unwrap();
+        write_atomically(&dir.path().join("out.bin"), |w| w.write_all(b"whole")).unwrap();
+        assert!(!killed.exists() && other.exists());
     }
 }

@@ -99,22 +99,23 @@ pub fn write_envi(path: &Path, cube: &EnviCube, description: &str) -> Result<()>
     write_atomically(path, |w| w.write_all(header.as_bytes()))
 }
 
-/// Parses `key = value` pairs; `{...}` values may span lines.
-fn parse_header(text: &str) -> std::result::Result<HashMap<String, String>, String> {
-    let mut lines = text.lines();
-    if lines.next().map(str::trim) != Some("ENVI") {
-        return Err("first line is not 'ENVI'".into());
+/// Parses `key = value` pairs; `{...}` values may span lines. An error carries the
+/// line (from 1) it was found on.
+fn parse_header(text: &str) -> std::result::Result<HashMap<String, String>, (usize, String)> {
+    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l));
+    if lines.next().map(|(_, l)| l.trim()) != Some("ENVI") {
+        return Err((1, "the first line is not 'ENVI'".into()));
     }
     let mut fields = HashMap::new();
-    let mut pending: Option<(String, String)> = None;
-    for line in lines {
-        if let Some((key, mut value)) = pending.take() {
+    let mut pending: Option<(usize, String, String)> = None;
+    for (number, line) in lines {
+        if let Some((start, key, mut value)) = pending.take() {
             value.push(' ');
             value.push_str(line.trim());
             if value.contains('}') {
                 fields.insert(key, value);
             } else {
-                pending = Some((key, value));
+                pending = Some((start, key, value));
             }
             continue;
         }
@@ -123,18 +124,18 @@ fn parse_header(text: &str) -> std::result::Result<HashMap<String, String>, Stri
             continue;
         }
         let Some((key, value)) = line.split_once('=') else {
-            return Err(format!("line '{line}' is not 'key = value'"));
+            return Err((number, format!("'{line}' is not 'key = value'")));
         };
         let key = key.trim().to_ascii_lowercase();
         let value = value.trim().to_string();
         if value.starts_with('{') && !value.contains('}') {
-            pending = Some((key, value));
+            pending = Some((number, key, value));
         } else {
             fields.insert(key, value);
         }
     }
-    if let Some((key, _)) = pending {
-        return Err(format!("unterminated '{{' in '{key}'"));
+    if let Some((start, key, _)) = pending {
+        return Err((start, format!("unterminated '{{' in '{key}'")));
     }
     Ok(fields)
 }
@@ -181,9 +182,9 @@ impl EnviHeader {
             });
         }
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let fields = parse_header(&text).map_err(|message| Error::Parse {
+        let fields = parse_header(&text).map_err(|(line, message)| Error::Parse {
             context: path.display().to_string(),
-            line: 1,
+            line,
             message,
         })?;
         Self::from_fields(path, &fields)
@@ -374,9 +375,30 @@ fn data_file_of(header: &Path) -> Result<PathBuf> {
         })
 }
 
-/// Reads an ENVI cube given its header path; the data file is `.img`, `.dat`, `.raw`
-/// or the header path without extension, and must hold exactly what the header declares.
-pub fn read_envi(path: &Path) -> Result<EnviCube> {
+/// The shape of an ENVI cube, from its header, with the data file's size checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnviShape {
+    pub width: usize,
+    pub height: usize,
+    pub bands: usize,
+    /// Band centres in nm, where the header gives them.
+    pub wavelengths: Option<Vec<f64>>,
+}
+
+/// Reads the header at `path` and checks that its data file holds exactly what the
+/// header declares, without reading the data: what a command checks before its work.
+pub fn read_envi_shape(path: &Path) -> Result<EnviShape> {
+    let (header, _) = checked_header(path)?;
+    Ok(EnviShape {
+        width: header.width,
+        height: header.height,
+        bands: header.bands,
+        wavelengths: header.wavelengths,
+    })
+}
+
+/// The header at `path` and its data file, whose size matches the header.
+fn checked_header(path: &Path) -> Result<(EnviHeader, PathBuf)> {
     let header = EnviHeader::read(path)?;
     let data_file = data_file_of(path)?;
     let expected = header.data_bytes();
@@ -390,6 +412,13 @@ pub fn read_envi(path: &Path) -> Result<EnviCube> {
             expected,
         });
     }
+    Ok((header, data_file))
+}
+
+/// Reads an ENVI cube given its header path; the data file is `.img`, `.dat`, `.raw`
+/// or the header path without extension, and must hold exactly what the header declares.
+pub fn read_envi(path: &Path) -> Result<EnviCube> {
+    let (header, data_file) = checked_header(path)?;
     let raw = std::fs::read(&data_file).map_err(|e| Error::io(&data_file, e))?;
     let raw = &raw[header.offset as usize..];
     let (w, h, n) = (header.width, header.height, header.bands);

@@ -9,15 +9,118 @@ use std::path::Path;
 /// An interleaved linear raster with values in [0, 1].
 pub type LinearImage = crate::image::Image<f32>;
 
-/// Reads a PNG or TIFF as linear values in [0, 1]; alpha is dropped.
-pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
-    let reader = image::ImageReader::open(path)
+/// Largest picture decoded, in pixels, unless `ANAGLYPH_MAX_PIXELS` says otherwise:
+/// 2^26 (67 Mpx, 8192 × 8192).
+pub const DEFAULT_MAX_IMAGE_PIXELS: u64 = 1 << 26;
+
+/// The pixel limit in force: `ANAGLYPH_MAX_PIXELS` where set to a number, else
+/// [`DEFAULT_MAX_IMAGE_PIXELS`]; never above [`MAX_RASTER_VALUES`] / 3.
+pub fn max_image_pixels() -> u64 {
+    std::env::var("ANAGLYPH_MAX_PIXELS")
+        .ok()
+        .and_then(|v| v.trim().parse::<u64>().ok())
+        .unwrap_or(DEFAULT_MAX_IMAGE_PIXELS)
+        .min(MAX_RASTER_VALUES / 3)
+}
+
+/// What a picture's header says, read without decoding its pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageHeader {
+    pub width: usize,
+    pub height: usize,
+    /// Channels once read: 1 (grey) or 3 (RGB); alpha is dropped.
+    pub channels: usize,
+}
+
+fn open_picture(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+    image::ImageReader::open(path)
         .map_err(|e| Error::io(path, e))?
         .with_guessed_format()
-        .map_err(|e| Error::io(path, e))?;
-    let mut reader = reader;
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Reads the size and channels of a PNG or TIFF from its header and checks them against
+/// [`max_image_pixels`], decoding no pixel: what a command checks before its work.
+pub fn read_image_header(path: &Path) -> Result<ImageHeader> {
+    use image::ImageDecoder;
+    super::tiff_directory::check_tiff_directory(path)?;
+    let mut reader = open_picture(path)?;
     let mut limits = image::Limits::default();
-    limits.max_alloc = Some(MAX_RASTER_VALUES * 2);
+    limits.max_alloc = Some(HEADER_ALLOCATION);
+    reader.limits(limits);
+    let decoder = reader.into_decoder().map_err(|e| Error::decode(path, e))?;
+    let (width, height) = decoder.dimensions();
+    let channels = match decoder.color_type().channel_count() {
+        1 | 2 => 1,
+        3 | 4 => 3,
+        other => {
+            return Err(Error::UnsupportedFormat {
+                file: path.into(),
+                what: "pixel type".into(),
+                found: format!("{other} channels"),
+                supported: "8- or 16-bit grey or RGB".into(),
+            })
+        }
+    };
+    let pixels = width as u64 * height as u64;
+    let limit = max_image_pixels();
+    if pixels > limit {
+        return Err(Error::TooLarge {
+            op: format!("reading {}", path.display()),
+            what: format!(
+                "a {width}x{height} picture, in pixels (ANAGLYPH_MAX_PIXELS raises the limit)"
+            ),
+            size: pixels,
+            limit,
+        });
+    }
+    check_compression(path, decoder.total_bytes())?;
+    Ok(ImageHeader {
+        width: width as usize,
+        height: height as usize,
+        channels,
+    })
+}
+
+/// What reading a header may allocate (tags, palettes, offsets): 16 MiB.
+const HEADER_ALLOCATION: u64 = 16 << 20;
+/// Pixels a file may declare beyond its own size before its ratio is checked: 16 MiB.
+const UNCHECKED_PIXEL_BYTES: u64 = 16 << 20;
+/// The most a capture's pixels outgrow its file: noisy sensor data compresses about 2×,
+/// a smooth rendering some 20×; only a truncated, hostile or constant picture reaches
+/// this (and a constant capture is refused anyway).
+const MAX_COMPRESSION_RATIO: u64 = 256;
+
+/// Refuses a file that declares far more pixel bytes than it could hold, before the
+/// decoder allocates them: a few hundred bytes declaring a picture of hundreds of MB.
+fn check_compression(path: &Path, declared: u64) -> Result<()> {
+    let file_bytes = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    if declared > UNCHECKED_PIXEL_BYTES
+        && declared > file_bytes.saturating_mul(MAX_COMPRESSION_RATIO)
+    {
+        return Err(Error::decode(
+            path,
+            format!(
+                "{file_bytes} bytes declaring {declared} bytes of pixels (expected at most \
+                 {MAX_COMPRESSION_RATIO} times the file's size: a truncated or corrupt file?)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Reads a PNG or TIFF as linear values in [0, 1]; alpha is dropped. The header is
+/// checked first ([`read_image_header`]), and the decoder may allocate no more than the
+/// picture it declares.
+pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
+    let header = read_image_header(path)?;
+    let mut reader = open_picture(path)?;
+    let mut limits = image::Limits::default();
+    let pixels = (header.width * header.height) as u64;
+    // Four 16-bit samples per pixel at most, and room for the decoder's own rows.
+    limits.max_alloc = Some(pixels * 8 + (64 << 20));
     reader.limits(limits);
     let decoded = reader.decode().map_err(|e| Error::Decode {
         file: path.into(),

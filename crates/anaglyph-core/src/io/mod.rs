@@ -10,16 +10,26 @@ mod envi;
 mod large_buffer;
 mod linear_image;
 mod npy;
+mod output_folder;
 mod pfm;
+mod tiff_directory;
 
 pub use atomic::write_atomically;
 pub use disparity_preview::{ramp_colour, write_disparity_preview};
-pub use envi::{read_envi, write_envi, EnviCube, MAX_ENVI_HEADER_BYTES};
+pub use envi::{
+    read_envi, read_envi_shape, write_envi, EnviCube, EnviShape, MAX_ENVI_HEADER_BYTES,
+};
 pub use large_buffer::zeroed_large;
-pub use linear_image::{read_linear_image, write_png16, LinearImage};
+pub use linear_image::{
+    max_image_pixels, read_image_header, read_linear_image, write_png16, ImageHeader, LinearImage,
+    DEFAULT_MAX_IMAGE_PIXELS,
+};
 pub use npy::{
     npy_header, open_npy_rows, read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32,
     write_npy_f64, FloatArray, NpyArray, NpyRowReader,
+};
+pub use output_folder::{
+    verify_output_folder, FileRecord, OutputFolder, Replace, VerifiedFolder, MANIFEST,
 };
 pub use pfm::{read_pfm, write_pfm, PfmImage};
 

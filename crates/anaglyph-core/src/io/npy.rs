@@ -23,7 +23,6 @@ enum Descriptor {
     F32,
     F64,
     Bool,
-    Other,
 }
 
 /// What a checked header declares.
@@ -38,14 +37,54 @@ struct Header {
     data_offset: u64,
 }
 
+/// The element type of the header's `descr`: float32, float64 or bool (for masks), its
+/// size in bytes and whether it is little-endian (or single-byte); any other type is an
+/// [`Error::UnsupportedFormat`] naming it as numpy does.
+fn element_type(path: &Path, header: &str) -> Result<(Descriptor, u64, bool)> {
+    let descr = header
+        .split("'descr':")
+        .nth(1)
+        .map(str::trim_start)
+        .ok_or_else(|| Error::decode(path, "header has no descr (expected e.g. '<f4')"))?;
+    let unsupported = |found: String| Error::UnsupportedFormat {
+        file: path.into(),
+        what: "element type".into(),
+        found,
+        supported: "float32 ('<f4'), float64 ('<f8'), bool ('|b1') for masks".into(),
+    };
+    let Some(code) = descr.strip_prefix('\'').and_then(|d| d.split('\'').next()) else {
+        return Err(unsupported("a structured dtype".into()));
+    };
+    let (order, rest) = match code.chars().next() {
+        Some(c @ ('<' | '>' | '|' | '=')) => (c, &code[1..]),
+        _ => ('=', code),
+    };
+    let little_endian = order != '>';
+    match rest {
+        "f4" => Ok((Descriptor::F32, 4, little_endian)),
+        "f8" => Ok((Descriptor::F64, 8, little_endian)),
+        "b1" => Ok((Descriptor::Bool, 1, true)),
+        other => Err(unsupported(numpy_name(other))),
+    }
+}
+
+/// numpy's name of a type code such as `c8` (complex64) or `i4` (int32).
+fn numpy_name(code: &str) -> String {
+    let bytes: Option<u32> = code.get(1..).and_then(|n| n.parse().ok());
+    let name = match (code.chars().next(), bytes) {
+        (Some('c'), Some(n)) => format!("complex{}", 8 * n),
+        (Some('f'), Some(n)) => format!("float{}", 8 * n),
+        (Some('i'), Some(n)) => format!("int{}", 8 * n),
+        (Some('u'), Some(n)) => format!("uint{}", 8 * n),
+        _ => return format!("'{code}'"),
+    };
+    format!("{name} ('{code}')")
+}
+
 /// Checks the header's shape against the file length; returns what it declares.
 fn check_header(path: &Path) -> Result<Header> {
     use std::io::Read;
-    let bad = |message: String| Error::Parse {
-        context: path.display().to_string(),
-        line: 0,
-        message,
-    };
+    let bad = |message: String| Error::decode(path, message);
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut head = vec![0u8; 12.min(file_len as usize)];
@@ -73,24 +112,7 @@ fn check_header(path: &Path) -> Result<Header> {
     file.read_exact(&mut header)
         .map_err(|e| Error::io(path, e))?;
     let header = String::from_utf8_lossy(&header);
-    let descriptor = if header.contains("f8'") {
-        Descriptor::F64
-    } else if header.contains("f4'") {
-        Descriptor::F32
-    } else if header.contains("b1'") {
-        Descriptor::Bool
-    } else {
-        Descriptor::Other
-    };
-    let item = if header.contains("f8") || header.contains("i8") || header.contains("u8") {
-        8
-    } else if header.contains("f4") || header.contains("i4") || header.contains("u4") {
-        4
-    } else if header.contains("f2") || header.contains("i2") || header.contains("u2") {
-        2
-    } else {
-        1
-    };
+    let (descriptor, item, little_endian) = element_type(path, &header)?;
     let shape_text = header
         .split("'shape':")
         .nth(1)
@@ -127,7 +149,7 @@ fn check_header(path: &Path) -> Result<Header> {
     }
     Ok(Header {
         descriptor,
-        little_endian: header.contains("'<") || header.contains("'|"),
+        little_endian,
         fortran_order: header.contains("'fortran_order': True"),
         shape,
         data_offset: prefix + header_len,
@@ -152,11 +174,7 @@ fn read_native<T: bytemuck::Pod + bytemuck::Zeroable>(
 }
 
 fn read_error(path: &Path, e: ndarray_npy::ReadNpyError) -> Error {
-    Error::Parse {
-        context: path.display().to_string(),
-        line: 0,
-        message: e.to_string(),
-    }
+    Error::decode(path, e)
 }
 
 fn into_row_major<T: Clone>(array: ArrayD<T>) -> NpyArray<T> {
@@ -224,10 +242,11 @@ pub fn read_npy_float(path: &Path) -> Result<FloatArray> {
             array.stored_as_f32 = true;
             Ok(FloatArray::F32(array))
         }
-        _ => Err(Error::Parse {
-            context: path.display().to_string(),
-            line: 0,
-            message: "element type is not float32 or float64".into(),
+        _ => Err(Error::UnsupportedFormat {
+            file: path.into(),
+            what: "element type".into(),
+            found: "bool".into(),
+            supported: "float32, float64".into(),
         }),
     }
 }
@@ -445,8 +464,34 @@ mod tests {
             .contains("header declares"));
         let text = String::from_utf8_lossy(&bytes).replace("(4,)", "(9999999999999,)");
         std::fs::write(&p, text.as_bytes()).unwrap();
-        assert_eq!(read_npy_f64(&p).err().map(|e| e.kind()), Some("Parse"));
+        assert_eq!(read_npy_f64(&p).err().map(|e| e.kind()), Some("Decode"));
         std::fs::write(&p, b"hello").unwrap();
         assert!(read_npy_f64(&p).unwrap_err().to_string().contains("magic"));
+    }
+
+    #[test]
+    fn other_element_types_are_named_as_numpy_names_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        for (descr, name) in [
+            ("<c8", "complex64 ('c8')"),
+            ("<i4", "int32 ('i4')"),
+            ("|u1", "uint8 ('u1')"),
+        ] {
+            let mut bytes = npy_header(descr, &[2]);
+            bytes.extend_from_slice(&[0u8; 16]);
+            std::fs::write(&p, &bytes).unwrap();
+            let refused = read_npy_f64(&p).err();
+            let message = refused.as_ref().map(|e| e.to_string()).unwrap_or_default();
+            assert_eq!(refused.map(|e| e.kind()), Some("UnsupportedFormat"));
+            assert!(message.contains(name), "{message}");
+        }
+        let dict = "{'descr': [('a', '<f4')], 'fortran_order': False, 'shape': (2,), }";
+        let mut bytes = b"\x93NUMPY\x01\x00\x76\x00".to_vec();
+        bytes.extend_from_slice(format!("{dict:<117}\n").as_bytes());
+        bytes.extend_from_slice(&[0u8; 8]);
+        std::fs::write(&p, &bytes).unwrap();
+        let message = read_npy_f64(&p).unwrap_err().to_string();
+        assert!(message.contains("structured"), "{message}");
     }
 }

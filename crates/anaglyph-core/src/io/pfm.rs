@@ -37,11 +37,7 @@ pub fn write_pfm(path: &Path, image: &PfmImage) -> Result<()> {
 /// Reads a PFM of either byte order; rows come back top to bottom.
 pub fn read_pfm(path: &Path) -> Result<PfmImage> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_pfm(&bytes).map_err(|message| Error::Parse {
-        context: path.display().to_string(),
-        line: 0,
-        message,
-    })
+    parse_pfm(&bytes).map_err(|message| Error::decode(path, message))
 }
 
 fn parse_pfm(bytes: &[u8]) -> std::result::Result<PfmImage, String> {

@@ -6,7 +6,7 @@
 //! calibrated capture and calibration record.
 
 use super::{calibrate, ArrayCaptures, CameraCalibration, PipelineSettings, RunLog};
-use super::{SATURATION_WARNING, UNEVEN_WHITE_WARNING};
+use super::{BRIGHTER_THAN_WHITE_WARNING, SATURATION_WARNING, UNEVEN_WHITE_WARNING};
 use crate::register::NormalisedView;
 use crate::rig::{Rig, SensingMatrix, ILL_CONDITIONED_WARNING};
 use crate::Result;
@@ -54,8 +54,9 @@ pub(super) fn calibrate_array(
     })
 }
 
-/// Saturation over [`SATURATION_WARNING`] and a white board that varies by more than
-/// [`UNEVEN_WHITE_WARNING`].
+/// Saturation over [`SATURATION_WARNING`], a white board that varies by more than
+/// [`UNEVEN_WHITE_WARNING`], and more than [`BRIGHTER_THAN_WHITE_WARNING`] of the values
+/// brighter than a perfect white.
 fn camera_warnings(record: &CameraCalibration, values: usize) -> Vec<String> {
     let mut warnings = Vec::new();
     let fraction = record.saturated_values as f64 / values.max(1) as f64;
@@ -77,6 +78,16 @@ fn camera_warnings(record: &CameraCalibration, values: usize) -> Vec<String> {
             record.row,
             record.col,
             100.0 * worst
+        ));
+    }
+    if record.brighter_than_white > BRIGHTER_THAN_WHITE_WARNING {
+        warnings.push(format!(
+            "camera r{}c{}: {:.1} % of values brighter than a perfect white ({}): was it \
+             captured at another exposure or under other light than the scene?",
+            record.row,
+            record.col,
+            100.0 * record.brighter_than_white,
+            record.method
         ));
     }
     warnings

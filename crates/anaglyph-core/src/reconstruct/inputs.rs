@@ -11,10 +11,10 @@
 //! Each camera may also carry its calibrated geometry, for rectification.
 
 use crate::image::Image;
-use crate::io::{read_linear_image, LinearImage};
+use crate::io::{read_image_header, read_linear_image, ImageHeader, LinearImage};
 use crate::rectify::CameraModel;
 use crate::register::{fill_from_nearest, NormalisedView};
-use crate::rig::{Rig, SensingMatrix};
+use crate::rig::{Camera, Rig, SensingMatrix};
 use crate::simulate::Simulation;
 use crate::stereo::GreyImage;
 use crate::{Error, Result};
@@ -24,6 +24,9 @@ use std::path::{Path, PathBuf};
 /// Coefficient of variation of a white board above which a warning is raised (an uneven
 /// board or vignetting: the per-channel gain is then only an average).
 pub const UNEVEN_WHITE_WARNING: f64 = 0.05;
+/// Fraction of a camera's values brighter than a perfect white above which a warning
+/// says the white board (or the exposure metadata) does not match the capture.
+pub const BRIGHTER_THAN_WHITE_WARNING: f64 = 0.25;
 /// Picture extensions looked for in capture folders.
 const EXTENSIONS: [&str; 3] = ["png", "tif", "tiff"];
 /// Calibration extensions looked for in calibration folders.
@@ -63,6 +66,9 @@ pub struct CameraCalibration {
     pub white_variation: Option<Vec<f64>>,
     /// Capture values at or above the saturation level (masked).
     pub saturated_values: usize,
+    /// Fraction of the unsaturated values brighter than a perfect white would be (a
+    /// reflectance above 1): a white board captured darker than the scene.
+    pub brighter_than_white: f64,
 }
 
 /// `DIR/r{row}c{col}.{ext}` for the first of `extensions` that exists; `what` names the
@@ -81,69 +87,133 @@ fn find_in(dir: &Path, row: usize, col: usize, extensions: &[&str], what: &str) 
         })
 }
 
+/// The files of one camera, found.
+struct CameraFiles {
+    capture: PathBuf,
+    white: Option<PathBuf>,
+    calibration: Option<PathBuf>,
+}
+
+impl CameraFiles {
+    /// `cam`'s files in the folders given, else where the rig file names them.
+    fn find(
+        cam: &Camera,
+        captures: Option<&Path>,
+        whites: Option<&Path>,
+        calibrations: Option<&Path>,
+    ) -> Result<Self> {
+        let capture = match captures {
+            Some(dir) => find_in(dir, cam.row, cam.col, &EXTENSIONS, "capture")?,
+            None => cam.image.clone().ok_or_else(|| {
+                Error::mismatch(
+                    format!("camera r{}c{}", cam.row, cam.col),
+                    "no image in the rig file and no --captures folder",
+                    "a capture for every camera",
+                )
+            })?,
+        };
+        let white = match whites {
+            Some(dir) => Some(find_in(dir, cam.row, cam.col, &EXTENSIONS, "white board")?),
+            None => cam.white.clone(),
+        };
+        let calibration = match calibrations {
+            Some(dir) => Some(find_in(
+                dir,
+                cam.row,
+                cam.col,
+                &CALIBRATION_EXTENSIONS,
+                "calibration",
+            )?),
+            None => cam.calibration.clone(),
+        };
+        Ok(CameraFiles {
+            capture,
+            white,
+            calibration,
+        })
+    }
+}
+
+/// Every picture's header against its camera's sensor (channels) and against the first
+/// capture (size), before anything is decoded; returns the size.
+fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
+    let mut first: Option<(PathBuf, ImageHeader)> = None;
+    for (cam, files) in rig.cameras.iter().zip(files) {
+        let channels = cam.sensor.channel_count();
+        for path in std::iter::once(&files.capture).chain(files.white.as_ref()) {
+            let header = read_image_header(path)?;
+            if header.channels != channels {
+                return Err(Error::mismatch(
+                    path.display().to_string(),
+                    format!("{} channels", header.channels),
+                    format!(
+                        "{channels}, as camera r{}c{}'s sensor '{}' (the rig does not match its images)",
+                        cam.row,
+                        cam.col,
+                        cam.sensor.name()
+                    ),
+                ));
+            }
+            match &first {
+                None => first = Some((path.clone(), header)),
+                Some((first_path, size))
+                    if (size.width, size.height) != (header.width, header.height) =>
+                {
+                    return Err(Error::mismatch(
+                        path.display().to_string(),
+                        format!("{}x{} pixels", header.width, header.height),
+                        format!(
+                            "{}x{}, as {}",
+                            size.width,
+                            size.height,
+                            first_path.display()
+                        ),
+                    ));
+                }
+                Some(_) => {}
+            }
+        }
+    }
+    Ok(first.map_or((0, 0), |(_, h)| (h.width, h.height)))
+}
+
 impl ArrayCaptures {
     /// Reads every camera's capture (and white board and calibration, where there is
     /// one): from `captures` / `whites` / `calibrations` folders when given, else from the
-    /// paths in the rig file.
+    /// paths in the rig file. Every file is found and every picture's header checked
+    /// (size, channels, limits) before any picture is decoded.
     pub fn load(
         rig: &Rig,
         captures: Option<&Path>,
         whites: Option<&Path>,
         calibrations: Option<&Path>,
     ) -> Result<Self> {
-        let mut cameras = Vec::with_capacity(rig.cameras.len());
-        for cam in &rig.cameras {
-            let name = format!("camera r{}c{}", cam.row, cam.col);
-            let capture_path = match captures {
-                Some(dir) => find_in(dir, cam.row, cam.col, &EXTENSIONS, "capture")?,
-                None => cam.image.clone().ok_or_else(|| {
-                    Error::mismatch(
-                        &name,
-                        "no image in the rig file and no --captures folder",
-                        "a capture for every camera",
-                    )
-                })?,
-            };
-            let white_path = match whites {
-                Some(dir) => Some(find_in(dir, cam.row, cam.col, &EXTENSIONS, "white board")?),
-                None => cam.white.clone(),
-            };
-            let calibration_path = match calibrations {
-                Some(dir) => Some(find_in(
-                    dir,
-                    cam.row,
-                    cam.col,
-                    &CALIBRATION_EXTENSIONS,
-                    "calibration",
-                )?),
-                None => cam.calibration.clone(),
-            };
-            let calibration = calibration_path
+        let files = rig
+            .cameras
+            .iter()
+            .map(|cam| CameraFiles::find(cam, captures, whites, calibrations))
+            .collect::<Result<Vec<_>>>()?;
+        let (width, height) = check_headers(rig, &files)?;
+        let channels = rig.channel_count() as u64;
+        let bands = rig.reconstruction_shape()?.count as u64;
+        // Captures and white boards, their calibrated copies, and one view's cube.
+        let values = (width * height) as u64 * (3 * channels + bands);
+        crate::memory::check_fits(
+            &format!("reconstructing from {width}x{height} captures"),
+            crate::memory::f32_bytes(values),
+        )?;
+        let mut cameras = Vec::with_capacity(files.len());
+        for (cam, files) in rig.cameras.iter().zip(&files) {
+            let calibration = files
+                .calibration
                 .as_deref()
                 .map(CameraModel::load)
                 .transpose()?;
-            let capture = read_linear_image(&capture_path)?;
-            let white = white_path.as_deref().map(read_linear_image).transpose()?;
-            let channels = cam.sensor.channel_count();
-            for (what, image) in [("capture", Some(&capture)), ("white board", white.as_ref())] {
-                if let Some(image) = image {
-                    if image.channels != channels {
-                        return Err(Error::mismatch(
-                            format!("{name} {what}"),
-                            format!("{} channels", image.channels),
-                            format!(
-                                "{channels}, as its sensor '{}' (the rig does not match its images)",
-                                cam.sensor.name()
-                            ),
-                        ));
-                    }
-                }
-            }
             cameras.push(CameraCapture {
                 row: cam.row,
                 col: cam.col,
-                capture,
-                white,
+                capture: read_linear_image(&files.capture)?,
+                white: files.white.as_deref().map(read_linear_image).transpose()?,
                 exposure: cam.exposure,
                 calibration,
             });
@@ -327,7 +397,10 @@ pub fn calibrate(
                 ))
             }
         };
-        let mut saturated = 0;
+        let responses: Vec<f64> = (0..ch)
+            .map(|c| sensing.row(first_row + c).iter().sum())
+            .collect();
+        let (mut saturated, mut brighter, mut measured) = (0, 0, 0);
         let data: Vec<f32> = cam
             .capture
             .data
@@ -340,7 +413,10 @@ pub fn calibrate(
                 } else if !v.is_finite() {
                     f32::NAN // not measured (outside a rectified frame)
                 } else {
-                    (v as f64 / gain[i % ch]) as f32
+                    let value = v as f64 / gain[i % ch];
+                    measured += 1;
+                    brighter += usize::from(value > responses[i % ch]);
+                    value as f32
                 }
             })
             .collect();
@@ -361,6 +437,7 @@ pub fn calibrate(
             gain,
             white_variation: variation,
             saturated_values: saturated,
+            brighter_than_white: brighter as f64 / measured.max(1) as f64,
         });
         first_row += ch;
     }

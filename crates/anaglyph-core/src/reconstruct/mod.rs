@@ -3,6 +3,7 @@
 //!
 //! ```text
 //! captures + white boards (+ calibrations)
+//!   -> checks          capture_checks.rs refuses a black, saturated or constant camera
 //!   -> rectification   rectification.rs  when the cameras carry calibrations
 //!   -> calibration     calibration.rs    C, and every capture in C's units
 //!   -> registration    registration.rs   a disparity map per camera (or given ones)
@@ -21,6 +22,7 @@
 //! and warnings; [`write_light_field`] writes the fixed output layout.
 
 mod calibration;
+mod capture_checks;
 mod inputs;
 mod output;
 mod preview;
@@ -31,8 +33,10 @@ mod settings;
 mod summary;
 mod view;
 
+pub use capture_checks::{BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
 pub use inputs::{
-    calibrate, ArrayCaptures, CameraCalibration, CameraCapture, UNEVEN_WHITE_WARNING,
+    calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
+    UNEVEN_WHITE_WARNING,
 };
 pub use output::{write_light_field, OutputOptions};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
@@ -49,6 +53,7 @@ use crate::rig::Rig;
 use crate::solve::{SolvePlan, SolveReport, SolveSettings};
 use crate::{Error, Result};
 use calibration::{calibrate_array, CalibratedArray};
+use capture_checks::check_capture_signal;
 use rectification::rectify_array;
 use registration::{register_array, RegisteredArray};
 use view::ViewPass;
@@ -134,6 +139,7 @@ pub fn reconstruct(
 ) -> Result<LightField> {
     settings.validate()?;
     check_captures_follow_rig(rig, captures)?;
+    check_capture_signal(captures, settings.saturation_level)?;
     let requested = requested_views(rig, settings.views.as_deref())?;
     let plan = SolvePlan::new(&settings.solve)?;
     let mut log = RunLog::default();

@@ -9,14 +9,19 @@
 //! OUT/preview/r{row}c{col}_srgb.png      CIE 1931 under D65
 //! OUT/probes/r{row}c{col}.svg            spectra at the --probe pixels (with truth if known)
 //! OUT/manifest.json                      inputs, parameters, calibration, rectification,
-//!                                        visibility,
-//!                                        per-stage timings, warnings, files
+//!                                        visibility, per-stage timings, warnings, the
+//!                                        run id and every file with its size and CRC-32
 //! ```
+//!
+//! The folder is written through an [`OutputFolder`] (staged, then renamed into place), so
+//! it is one run's complete output or absent; [`OutputOptions::check`] is what a command
+//! calls before its work to find bad probes or a missing truth first.
 
 use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
 use crate::image::Image;
 use crate::io::{
-    read_envi, write_atomically, write_disparity_preview, write_envi, write_pfm, EnviCube,
+    read_envi, read_envi_shape, write_disparity_preview, write_envi, write_pfm, EnviCube,
+    OutputFolder,
 };
 use crate::rig::Rig;
 use crate::{Error, Result};
@@ -57,30 +62,62 @@ struct Manifest<'a> {
     views: Vec<super::ViewSummary>,
     timings: Vec<(String, f64)>,
     warnings: &'a [String],
-    files: Vec<String>,
 }
 
 fn create_dir(path: &Path) -> Result<()> {
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))
 }
 
-/// Writes `field` into `dir`; returns the files written (the manifest last).
+impl OutputOptions {
+    /// Checks, before any work, what the output will need: every probe inside the
+    /// `width × height` images, and where a truth is named, a cube of `bands` bands at that
+    /// size for every view in `views` (their headers and data sizes; nothing is read yet).
+    pub fn check(
+        &self,
+        width: usize,
+        height: usize,
+        bands: usize,
+        views: &[(usize, usize)],
+    ) -> Result<()> {
+        for &(x, y) in &self.probes {
+            if x >= width || y >= height {
+                return Err(Error::mismatch(
+                    "probe",
+                    format!("pixel ({x}, {y})"),
+                    format!("a pixel inside the {width}x{height} image"),
+                ));
+            }
+        }
+        let Some(truth) = self.truth.as_ref().filter(|_| !self.probes.is_empty()) else {
+            return Ok(());
+        };
+        for (row, col) in views {
+            let path = truth.join(format!("truth/r{row}c{col}.hdr"));
+            let shape = read_envi_shape(&path)?;
+            if (shape.width, shape.height, shape.bands) != (width, height, bands) {
+                return Err(Error::Shape {
+                    op: format!("probe truth {}", path.display()),
+                    got: vec![shape.width, shape.height, shape.bands],
+                    expected: vec![width, height, bands],
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Writes `field` into `folder` (the manifest last); returns the number of files. The
+/// caller commits the folder.
 pub fn write_light_field(
-    dir: &Path,
+    folder: &OutputFolder,
     rig: &Rig,
     field: &LightField,
     options: &OutputOptions,
-) -> Result<Vec<PathBuf>> {
+) -> Result<usize> {
     let (w, h) = (field.width, field.height);
-    for &(x, y) in &options.probes {
-        if x >= w || y >= h {
-            return Err(Error::mismatch(
-                "probe",
-                format!("pixel ({x}, {y})"),
-                format!("a pixel inside the {w}x{h} image"),
-            ));
-        }
-    }
+    let views: Vec<(usize, usize)> = field.views.iter().map(|v| (v.row, v.col)).collect();
+    options.check(w, h, field.bands.len(), &views)?;
+    let dir = folder.path();
     for sub in ["views", "disparity", "preview"] {
         create_dir(&dir.join(sub))?;
     }
@@ -95,7 +132,6 @@ pub fn write_light_field(
         .flat_map(|v| v.disparity.data.iter())
         .filter(|d| d.is_finite())
         .fold(0.0f32, |a, &b| a.max(b));
-    let mut files = Vec::new();
     for view in &field.views {
         let name = format!("r{}c{}", view.row, view.col);
         let camera = rig
@@ -107,29 +143,22 @@ pub fn write_light_field(
                 name: name.clone(),
                 available: "the rig's cameras".into(),
             })?;
-        files.extend(write_cube(dir, &name, field, view)?);
-        files.extend(write_disparity(dir, &name, field, view, max_disparity)?);
+        write_cube(dir, &name, field, view)?;
+        write_disparity(dir, &name, field, view, max_disparity)?;
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
         pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
         srgb_preview(&view.reflectance, w, h, &field.bands)?.save(&srgb)?;
-        files.extend([pseudo, srgb]);
         if !options.probes.is_empty() {
-            files.push(write_probes(dir, &name, field, view, options)?);
+            write_probes(dir, &name, field, view, options)?;
         }
     }
-    let manifest = write_manifest(dir, field, options, &files, clock.elapsed().as_secs_f64())?;
-    files.push(manifest);
-    Ok(files)
+    let manifest = manifest(field, options, clock.elapsed().as_secs_f64());
+    folder.write_manifest(&manifest)
 }
 
 /// `views/NAME.hdr` and `.img`: the view's reflectance cube.
-fn write_cube(
-    dir: &Path,
-    name: &str,
-    field: &LightField,
-    view: &ReconstructedView,
-) -> Result<[PathBuf; 2]> {
+fn write_cube(dir: &Path, name: &str, field: &LightField, view: &ReconstructedView) -> Result<()> {
     let path = dir.join(format!("views/{name}.hdr"));
     write_envi(
         &path,
@@ -144,8 +173,7 @@ fn write_cube(
         },
         &format!("anaglyph reconstructed reflectance, view {name}"),
     )?;
-    let raw = path.with_extension("img");
-    Ok([path, raw])
+    Ok(())
 }
 
 /// `disparity/NAME.pfm` (+inf where unknown) and its colour-mapped preview.
@@ -155,13 +183,13 @@ fn write_disparity(
     field: &LightField,
     view: &ReconstructedView,
     max_disparity: f32,
-) -> Result<[PathBuf; 2]> {
+) -> Result<()> {
     let (w, h) = (field.width, field.height);
     let pfm = dir.join(format!("disparity/{name}.pfm"));
     write_pfm(&pfm, &view.disparity.to_pfm())?;
     let png = dir.join(format!("disparity/{name}.png"));
     write_disparity_preview(&png, &view.disparity.data, w, h, max_disparity)?;
-    Ok([pfm, png])
+    Ok(())
 }
 
 /// `probes/NAME.svg`: the spectra at the probe pixels, beside the simulator's truth when
@@ -172,7 +200,7 @@ fn write_probes(
     field: &LightField,
     view: &ReconstructedView,
     options: &OutputOptions,
-) -> Result<PathBuf> {
+) -> Result<()> {
     let (w, h, nb) = (field.width, field.height, field.bands.len());
     let truth = match &options.truth {
         Some(t) => Some(read_envi(&t.join(format!("truth/{name}.hdr")))?),
@@ -210,24 +238,19 @@ fn write_probes(
         &format!("reflectance, view {name}"),
         &field.bands,
         &probes,
-    )?;
-    Ok(svg)
+    )
 }
 
-/// `manifest.json`, listing `files`: written last, so that a complete manifest means a
-/// complete folder.
-fn write_manifest(
-    dir: &Path,
-    field: &LightField,
-    options: &OutputOptions,
-    files: &[PathBuf],
+/// What `manifest.json` says besides the run id and the files, which the folder adds.
+fn manifest<'a>(
+    field: &'a LightField,
+    options: &'a OutputOptions,
     writing_seconds: f64,
-) -> Result<PathBuf> {
+) -> Manifest<'a> {
     let mut timings = vec![("loading".to_string(), options.loading_seconds)];
     timings.extend(field.timings.iter().cloned());
     timings.push(("writing".to_string(), writing_seconds));
-    let manifest_path = dir.join("manifest.json");
-    let manifest = Manifest {
+    Manifest {
         generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
         parameters: &options.parameters,
         width: field.width,
@@ -246,12 +269,5 @@ fn write_manifest(
         views: field.views.iter().map(|v| v.summary()).collect(),
         timings,
         warnings: &field.warnings,
-        files: files
-            .iter()
-            .map(|f| f.strip_prefix(dir).unwrap_or(f).display().to_string())
-            .collect(),
-    };
-    let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::output("manifest", e))?;
-    write_atomically(&manifest_path, |out| out.write_all(json.as_bytes()))?;
-    Ok(manifest_path)
+    }
 }

@@ -10,7 +10,7 @@ mod sensing;
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
     resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,
-    BUILTIN_PREFIX, MAX_RIG_SIDE, PAPER_RIG_FILTERS,
+    BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE, PAPER_RIG_FILTERS,
 };
 pub use sensing::{
     condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,

@@ -13,6 +13,8 @@ use std::path::{Path, PathBuf};
 pub const BUILTIN_PREFIX: &str = "builtin:";
 /// Largest number of rows or columns of an array.
 pub const MAX_RIG_SIDE: usize = 64;
+/// Most reconstruction bands a rig may ask for (1 nm steps over 380–1403 nm).
+pub const MAX_BANDS: usize = 1024;
 /// The filters `anaglyph rig init` selects for the paper's 2×4 rig from the built-in gel
 /// library by smallest cond(C) (Canon EOS 5D Mark II, CIE A), in row-major camera order.
 /// The CLI test `rig_init_then_show_writes_the_rig_plot_and_c` checks the selection still
@@ -234,6 +236,14 @@ impl RigFile {
         let lambda = self.reconstruction.lambda;
         if !(lambda.is_finite() && lambda >= 0.0) {
             return range("lambda", lambda, "finite and >= 0");
+        }
+        let count = self.reconstruction.count;
+        if !(1..=MAX_BANDS).contains(&count) {
+            return range(
+                "[reconstruction] count",
+                count as f64,
+                &format!("1 to {MAX_BANDS} bands"),
+            );
         }
         let mut seen = vec![false; self.rows * self.cols];
         for cam in &self.cameras {

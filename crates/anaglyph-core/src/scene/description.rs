@@ -205,6 +205,17 @@ fn finite_positive(what: &str, v: f64, ctx: &str) -> Result<f64> {
     }
 }
 
+fn finite(what: &str, v: f64, ctx: &str) -> Result<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(Error::NonFinite {
+            what: format!("{ctx}: {what}"),
+            value: v,
+        })
+    }
+}
+
 fn to_vec3(a: [f64; 3], ctx: &str) -> Result<Vec3> {
     if a.iter().all(|v| v.is_finite()) {
         Ok(Vec3::new(a[0], a[1], a[2]))
@@ -310,7 +321,7 @@ fn material(spec: &MaterialSpec, resolver: &mut Resolver, ctx: &str) -> Result<M
     let first = linear_colour(spec.srgb.unwrap_or([0.8, 0.8, 0.8]), ctx)?;
     let second = linear_colour(spec.srgb2.unwrap_or([0.1, 0.1, 0.1]), ctx)?;
     let period = || finite_positive("period_mm", spec.period_mm.unwrap_or(10.0), ctx);
-    let angle = spec.angle_deg.unwrap_or(0.0);
+    let angle = finite("angle_deg", spec.angle_deg.unwrap_or(0.0), ctx)?;
     let pattern = match spec.pattern.as_deref() {
         None => Pattern::Flat,
         Some("stripes") => Pattern::Stripes {

@@ -8,7 +8,8 @@
 //! DIR/truth/r{row}c{col}.hdr + .img     ENVI float32 reflectance at the reconstruction bands
 //! DIR/truth/r{row}c{col}_disparity.pfm  disparity per column step (Middlebury sign)
 //! DIR/truth/r{row}c{col}_depth.pfm      depth along the optical axis, mm
-//! DIR/manifest.json                     scene, seed, rig, noise, exposures, files
+//! DIR/manifest.json                     scene, seed, rig, noise, exposures; the run id
+//!                                       and every file with its size and CRC-32 (last)
 //! DIR/contact_sheet.png                 8-bit sRGB preview of all captures on the grid
 //! DIR/calibration/r{row}c{col}.json     the capturing camera in OpenCV FileStorage JSON:
 //!                                       camera_matrix, distortion_coefficients (zero),
@@ -16,11 +17,15 @@
 //!                                       camera, mm; world = ideal camera r0c0); named in
 //!                                       rig.toml when poses are jittered
 //! ```
+//!
+//! The folder is written through an [`OutputFolder`] (staged, then renamed into place), so
+//! it is one run's complete output or absent.
 
 use super::{RenderedView, Simulation};
 use crate::image::Image;
 use crate::io::{
-    write_atomically, write_envi, write_pfm, write_png16, EnviCube, LinearImage, PfmImage,
+    write_atomically, write_envi, write_pfm, write_png16, EnviCube, LinearImage, OutputFolder,
+    PfmImage,
 };
 use crate::rectify::CameraModel;
 use crate::rig::{Rig, RigFile};
@@ -58,23 +63,22 @@ fn create_dir(path: &Path) -> Result<()> {
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))
 }
 
-/// Writes `simulation` of `scene` seen by `rig` into `dir`; returns the files written.
+/// Writes `simulation` of `scene` seen by `rig` into `folder` (the manifest last);
+/// returns the number of files. The caller commits the folder.
 pub fn write_simulation(
-    dir: &Path,
+    folder: &OutputFolder,
     rig: &Rig,
     scene: &SceneFile,
     simulation: &Simulation,
     seconds: f64,
-) -> Result<Vec<PathBuf>> {
+) -> Result<usize> {
+    let dir = folder.path();
     for sub in ["captures", "white", "truth", "calibration"] {
         create_dir(&dir.join(sub))?;
     }
-    let mut files = Vec::new();
     let mut records = Vec::new();
     for view in &simulation.views {
-        let (record, written) = write_view(dir, scene, simulation, view)?;
-        records.push(record);
-        files.extend(written);
+        records.push(write_view(dir, scene, simulation, view)?);
     }
     let rig_file = simulated_rig_file(rig, simulation);
     rig_file.save(&dir.join("rig.toml"))?;
@@ -82,7 +86,13 @@ pub fn write_simulation(
     write_atomically(&dir.join("scene.toml"), |w| {
         w.write_all(scene_text.as_bytes())
     })?;
-    let manifest = Manifest {
+    super::write_contact_sheet(
+        &dir.join("contact_sheet.png"),
+        simulation,
+        rig.file.rows,
+        rig.file.cols,
+    )?;
+    folder.write_manifest(&Manifest {
         generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
         scene,
         rig_file: &rig_file,
@@ -90,32 +100,17 @@ pub fn write_simulation(
         bands_nm: &simulation.bands,
         views: records,
         seconds,
-    };
-    let json = serde_json::to_string_pretty(&manifest).map_err(|e| Error::output("manifest", e))?;
-    write_atomically(&dir.join("manifest.json"), |w| w.write_all(json.as_bytes()))?;
-    super::write_contact_sheet(
-        &dir.join("contact_sheet.png"),
-        simulation,
-        rig.file.rows,
-        rig.file.cols,
-    )?;
-    files.extend([
-        dir.join("rig.toml"),
-        dir.join("scene.toml"),
-        dir.join("manifest.json"),
-        dir.join("contact_sheet.png"),
-    ]);
-    Ok(files)
+    })
 }
 
 /// One view's capture, white board, truth cube, disparity, depth and calibration; its
-/// manifest record and the files written.
+/// manifest record.
 fn write_view(
     dir: &Path,
     scene: &SceneFile,
     simulation: &Simulation,
     view: &RenderedView,
-) -> Result<(ViewRecord, Vec<PathBuf>)> {
+) -> Result<ViewRecord> {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
     let name = format!("r{}c{}", view.row, view.col);
     let record = ViewRecord {
@@ -160,22 +155,10 @@ fn write_view(
     };
     write_pfm(&dir.join(&record.disparity), &plane(&view.disparity))?;
     write_pfm(&dir.join(&record.depth), &plane(&view.depth))?;
-    let mut files: Vec<PathBuf> = [
-        &record.capture,
-        &record.white,
-        &record.truth,
-        &record.disparity,
-        &record.depth,
-    ]
-    .into_iter()
-    .map(|f| dir.join(f))
-    .collect();
-    files.push(dir.join(format!("truth/{name}.img")));
     let calibration = dir.join(format!("calibration/{name}.json"));
     let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
     write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
-    files.push(calibration);
-    Ok((record, files))
+    Ok(record)
 }
 
 /// Smallest and largest finite value.

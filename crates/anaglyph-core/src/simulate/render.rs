@@ -392,6 +392,17 @@ impl Simulation {
             ));
         }
         let bands = rig.reconstruction_shape()?;
+        let per_pixel = bands.count + 2 * rig.channel_count() / rig.cameras.len().max(1) + 2;
+        let pixels = (settings.width * settings.height) as u64;
+        crate::memory::check_fits(
+            &format!(
+                "simulating {} views at {}x{}",
+                rig.cameras.len(),
+                settings.width,
+                settings.height
+            ),
+            crate::memory::f32_bytes(pixels * (rig.cameras.len() * per_pixel) as u64),
+        )?;
         if bands.start < UPSAMPLING_SHAPE.start || bands.end() > UPSAMPLING_SHAPE.end() {
             return Err(Error::mismatch(
                 "simulation",

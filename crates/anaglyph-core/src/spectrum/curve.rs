@@ -134,6 +134,8 @@ impl ResponseCurve {
             line,
             message,
         };
+        // A byte-order mark (spreadsheets write one) is not part of the header.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut lines = text
             .lines()
             .enumerate()
