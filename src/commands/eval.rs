@@ -5,7 +5,9 @@
 use super::check_output_file;
 use crate::cli::EvalArgs;
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
-use anaglyph_core::io::{read_envi, read_pfm, verify_output_folder, write_atomically};
+use anaglyph_core::io::{
+    read_envi, read_pfm, verify_output_folder, verify_output_subfolder, write_atomically,
+};
 use anaglyph_core::register::ArrayGeometry;
 use anaglyph_core::rig::Rig;
 use anyhow::Context;
@@ -51,10 +53,9 @@ fn print_bands(label: &str, centres: &[f64], values: &[f64], digits: usize) {
 
 /// Scores every view found in `recon/views` against `truth`.
 pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
-    for dir in [truth, recon] {
-        verify_output_folder(dir)
-            .with_context(|| format!("{}: not one run's complete output", dir.display()))?;
-    }
+    let whole = |dir: &Path| format!("{}: not one run's complete output", dir.display());
+    verify_output_subfolder(truth, "truth").with_context(|| whole(truth))?;
+    verify_output_folder(recon).with_context(|| whole(recon))?;
     let rig = Rig::load(&truth.join("rig.toml"))?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();

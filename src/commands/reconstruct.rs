@@ -9,7 +9,7 @@ use crate::cli::{
     TuningArgs, ViewList, WarpKernelChoice,
 };
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
-use anaglyph_core::io::read_pfm;
+use anaglyph_core::io::{read_pfm, verify_output_subfolder};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
     Preset, Stage,
@@ -62,6 +62,19 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let mut settings = pipeline_settings(&args, cost);
     settings.validate()?;
     let rig = load_rig(&args)?;
+    for (option, dir) in [
+        ("--truth", &args.truth),
+        ("--true-disparity", &args.true_disparity),
+    ] {
+        if let Some(dir) = dir {
+            verify_output_subfolder(dir, "truth").with_context(|| {
+                format!(
+                    "{option} {}: not one simulation's complete output",
+                    dir.display()
+                )
+            })?;
+        }
+    }
     let folder = begin_output(&args.out, args.force, &input_paths(&args, &rig))?;
     let captures = ArrayCaptures::load(
         &rig,

@@ -268,7 +268,7 @@ fn side_inputs_and_outputs_are_checked_before_any_work() {
         "pixel (500, 10) (expected a pixel inside the 128x96 image)",
     );
     let o = reconstruct(d, "rec", &["--probe", "5,10", "--truth", "nowhere"]);
-    assert_clean_failure(&o, "nowhere/truth/r0c0.hdr");
+    assert_clean_failure(&o, "--truth nowhere: not one simulation's complete output");
     assert!(!d.join("rec").exists());
     std::fs::create_dir(d.join("model")).unwrap();
     let o = anaglyph(&["train", "--out", "model", "--steps", "1"], d);

@@ -29,7 +29,8 @@ pub use npy::{
     write_npy_f64, FloatArray, NpyArray, NpyRowReader,
 };
 pub use output_folder::{
-    verify_output_folder, FileRecord, OutputFolder, Replace, VerifiedFolder, MANIFEST,
+    verify_output_folder, verify_output_subfolder, FileRecord, OutputFolder, Replace,
+    VerifiedFolder, MANIFEST,
 };
 pub use pfm::{read_pfm, write_pfm, PfmImage};
 

@@ -330,6 +330,17 @@ pub struct VerifiedFolder {
 /// files, every listed file is there with the recorded size and CRC-32, and no file is
 /// there that the manifest does not list (a file of another run).
 pub fn verify_output_folder(dir: &Path) -> Result<VerifiedFolder> {
+    verify_files(dir, "")
+}
+
+/// As [`verify_output_folder`] for the files under `dir/sub/` only (a simulation's
+/// `truth/`), so that a user may edit the rest (its `rig.toml`) and still use the truth.
+pub fn verify_output_subfolder(dir: &Path, sub: &str) -> Result<VerifiedFolder> {
+    verify_files(dir, &format!("{}/", sub.trim_end_matches('/')))
+}
+
+/// The checks of [`verify_output_folder`] on the files whose path starts with `scope`.
+fn verify_files(dir: &Path, scope: &str) -> Result<VerifiedFolder> {
     let manifest_path = dir.join(MANIFEST);
     if !manifest_path.is_file() {
         return Err(Error::MissingFile {
@@ -348,7 +359,7 @@ pub fn verify_output_folder(dir: &Path) -> Result<VerifiedFolder> {
     })?;
     let listed: std::collections::BTreeSet<&str> =
         manifest.files.iter().map(|f| f.path.as_str()).collect();
-    for record in &manifest.files {
+    for record in manifest.files.iter().filter(|f| f.path.starts_with(scope)) {
         let found = record_of(dir, &record.path).map_err(|_| Error::MissingFile {
             path: dir.join(&record.path),
             what: format!("listed in {} (a partial folder)", manifest_path.display()),
@@ -365,7 +376,8 @@ pub fn verify_output_folder(dir: &Path) -> Result<VerifiedFolder> {
         }
     }
     for relative in files_under(dir)? {
-        if relative != MANIFEST && !listed.contains(relative.as_str()) {
+        let in_scope = relative.starts_with(scope);
+        if in_scope && relative != MANIFEST && !listed.contains(relative.as_str()) {
             return Err(Error::mismatch(
                 dir.join(&relative).display().to_string(),
                 "a file the manifest does not list",

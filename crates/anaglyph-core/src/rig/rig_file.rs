@@ -154,8 +154,12 @@ pub struct Rig {
     pub illuminant: Option<ResponseCurve>,
 }
 
-/// Loads a curve reference: `builtin:<name>` or a CSV path relative to `base`.
+/// Loads a curve reference: `builtin:<name>`, a nominal narrow-band filter
+/// `gaussian:CENTRE_NM:FWHM_NM[:PEAK]`, or a CSV path relative to `base`.
 pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
+    if let Some(spec) = reference.strip_prefix(crate::filters::GAUSSIAN_PREFIX) {
+        return crate::filters::gaussian_filter(spec);
+    }
     match reference.strip_prefix(BUILTIN_PREFIX) {
         Some(name) => builtin::any(name),
         None => {

@@ -148,3 +148,27 @@ fn verification_refuses_partial_mixed_and_changed_folders() {
     let unfinished = verify_output_folder(&target);
     assert_eq!(unfinished.err().map(|e| e.kind()), Some("MissingFile"));
 }
+
+#[test]
+fn a_subfolder_verifies_while_the_rest_was_edited() {
+    let root = tempfile::tempdir().unwrap();
+    let target = root.path().join("sim");
+    let folder = OutputFolder::begin(&target, Replace::OwnOutput, &[]).unwrap();
+    finish(
+        folder,
+        &[("rig.toml", "rows = 2"), ("truth/r0c0.pfm", "map")],
+    );
+    std::fs::write(target.join("rig.toml"), "rows = 2 # edited").unwrap();
+    assert_eq!(
+        verify_output_folder(&target).err().map(|e| e.kind()),
+        Some("Mismatch")
+    );
+    verify_output_subfolder(&target, "truth").unwrap();
+    std::fs::write(target.join("truth/r0c1.pfm"), "stale").unwrap();
+    assert_eq!(
+        verify_output_subfolder(&target, "truth")
+            .err()
+            .map(|e| e.kind()),
+        Some("Mismatch")
+    );
+}
