@@ -9,6 +9,8 @@ use std::process::{Command, Output};
 
 #[path = "cli/bad_input.rs"]
 mod bad_input;
+#[path = "cli/real_sensor.rs"]
+mod real_sensor;
 
 fn anaglyph(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_anaglyph"))

@@ -89,12 +89,12 @@ pub fn check_output_file(path: &std::path::Path, option: &str) -> anyhow::Result
     Ok(())
 }
 
-/// Every file a rig names (captures, white boards, calibrations) and the rig's folder's
-/// files, resolved: the inputs an output folder must not hold.
+/// Every file a rig names (captures, white boards, calibrations, dark frames), resolved:
+/// inputs an output folder must not hold.
 pub fn rig_inputs(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf> {
     rig.cameras
         .iter()
-        .flat_map(|c| [&c.image, &c.white, &c.calibration])
+        .flat_map(|c| [&c.image, &c.white, &c.calibration, &c.dark])
         .flatten()
         .map(|p| rig.base_dir.join(p))
         .collect()

@@ -30,6 +30,8 @@ pub struct ImageHeader {
     pub height: usize,
     /// Channels once read: 1 (grey) or 3 (RGB); alpha is dropped.
     pub channels: usize,
+    /// The largest value the file can store (255 or 65535), which reads as 1.
+    pub full_scale: u32,
 }
 
 fn open_picture(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
@@ -75,10 +77,13 @@ pub fn read_image_header(path: &Path) -> Result<ImageHeader> {
         });
     }
     check_compression(path, decoder.total_bytes())?;
+    let colour = decoder.color_type();
+    let bytes_per_sample = colour.bytes_per_pixel() / colour.channel_count().max(1);
     Ok(ImageHeader {
         width: width as usize,
         height: height as usize,
         channels,
+        full_scale: if bytes_per_sample == 1 { 255 } else { 65535 },
     })
 }
 

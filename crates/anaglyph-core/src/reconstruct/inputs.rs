@@ -10,6 +10,7 @@
 //! built with the scene's illuminant. Values at or above the saturation level are NaN.
 //! Each camera may also carry its calibrated geometry, for rectification.
 
+use super::dark_level::Dark;
 use crate::image::Image;
 use crate::io::{read_image_header, read_linear_image, ImageHeader, LinearImage};
 use crate::rectify::CameraModel;
@@ -92,6 +93,7 @@ struct CameraFiles {
     capture: PathBuf,
     white: Option<PathBuf>,
     calibration: Option<PathBuf>,
+    dark: Option<PathBuf>,
 }
 
 impl CameraFiles {
@@ -130,8 +132,21 @@ impl CameraFiles {
             capture,
             white,
             calibration,
+            dark: cam.dark.clone(),
         })
     }
+}
+
+/// The camera's dark frame, or its black level in the units of its capture file.
+fn dark_of(cam: &Camera, files: &CameraFiles) -> Result<Option<Dark>> {
+    Ok(match (&files.dark, cam.black_level) {
+        (Some(path), _) => Some(Dark::Frame(read_linear_image(path)?)),
+        (None, Some(level)) => {
+            let full_scale = f64::from(read_image_header(&files.capture)?.full_scale);
+            Some(Dark::level(level, full_scale, &files.capture)?)
+        }
+        (None, None) => None,
+    })
 }
 
 /// Every picture's header against its camera's sensor (channels) and against the first
@@ -140,7 +155,12 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
     let mut first: Option<(PathBuf, ImageHeader)> = None;
     for (cam, files) in rig.cameras.iter().zip(files) {
         let channels = cam.sensor.channel_count();
-        for path in std::iter::once(&files.capture).chain(files.white.as_ref()) {
+        let pictures = [
+            Some(&files.capture),
+            files.white.as_ref(),
+            files.dark.as_ref(),
+        ];
+        for path in pictures.into_iter().flatten() {
             let header = read_image_header(path)?;
             if header.channels != channels {
                 return Err(Error::mismatch(
@@ -209,11 +229,19 @@ impl ArrayCaptures {
                 .as_deref()
                 .map(CameraModel::load)
                 .transpose()?;
+            let dark = dark_of(cam, files)?;
+            let read = |path: &Path| -> Result<LinearImage> {
+                let mut image = read_linear_image(path)?;
+                if let Some(dark) = &dark {
+                    dark.subtract_from(&mut image);
+                }
+                Ok(image)
+            };
             cameras.push(CameraCapture {
                 row: cam.row,
                 col: cam.col,
-                capture: read_linear_image(&files.capture)?,
-                white: files.white.as_deref().map(read_linear_image).transpose()?,
+                capture: read(&files.capture)?,
+                white: files.white.as_deref().map(read).transpose()?,
                 exposure: cam.exposure,
                 calibration,
             });

@@ -2,7 +2,7 @@
 //! sections 2.1, 3.3, 2.3). [`reconstruct`] reads as its list of stages:
 //!
 //! ```text
-//! captures + white boards (+ calibrations)
+//! captures + white boards (+ calibrations), less their dark levels (dark_level.rs)
 //!   -> checks          capture_checks.rs refuses a black, saturated or constant camera
 //!   -> rectification   rectification.rs  when the cameras carry calibrations
 //!   -> calibration     calibration.rs    C, and every capture in C's units
@@ -23,6 +23,7 @@
 
 mod calibration;
 mod capture_checks;
+mod dark_level;
 mod inputs;
 mod output;
 mod preview;
@@ -34,6 +35,7 @@ mod summary;
 mod view;
 
 pub use capture_checks::{BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
+pub use dark_level::Dark;
 pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
     UNEVEN_WHITE_WARNING,

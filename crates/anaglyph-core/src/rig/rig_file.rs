@@ -100,6 +100,15 @@ pub struct CameraEntry {
     /// cameras have one, reconstruction rectifies the array first.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<PathBuf>,
+    /// The sensor's black level in the capture file's own units (e.g. 64 of 65535, or
+    /// 256 × 16 for a 12-bit sensor stored in 16 bits), subtracted from the capture and
+    /// the white board before anything else.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub black_level: Option<f64>,
+    /// A dark frame (lens capped, the capture's exposure), subtracted pixel by pixel from
+    /// the capture and the white board; replaces `black_level`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dark: Option<PathBuf>,
 }
 
 /// The TOML document.
@@ -142,6 +151,10 @@ pub struct Camera {
     pub exposure: Option<f64>,
     /// Calibration file (see [`CameraEntry::calibration`]).
     pub calibration: Option<PathBuf>,
+    /// Black level in the capture file's units (see [`CameraEntry::black_level`]).
+    pub black_level: Option<f64>,
+    /// Dark frame (see [`CameraEntry::dark`]).
+    pub dark: Option<PathBuf>,
 }
 
 /// A loaded, validated rig: cameras in row-major order.
@@ -258,6 +271,15 @@ impl RigFile {
                     format!("cameras inside the {} x {} grid", self.rows, self.cols),
                 ));
             }
+            if let Some(b) = cam.black_level {
+                if !(b.is_finite() && b >= 0.0) {
+                    return range(
+                        &format!("camera r{}c{} black_level", cam.row, cam.col),
+                        b,
+                        "finite and >= 0, in the capture file's units",
+                    );
+                }
+            }
             if let Some(e) = cam.exposure {
                 if !(e.is_finite() && e > 0.0) {
                     return range(
@@ -361,6 +383,8 @@ impl Rig {
                 white: resolve_path(&e.white),
                 exposure: e.exposure,
                 calibration: resolve_path(&e.calibration),
+                black_level: e.black_level,
+                dark: resolve_path(&e.dark),
                 filter,
                 sensor,
             });
@@ -401,6 +425,8 @@ impl Rig {
                 white: None,
                 exposure: None,
                 calibration: None,
+                black_level: None,
+                dark: None,
             })
             .collect();
         RigFile {

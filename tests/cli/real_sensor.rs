@@ -1,0 +1,120 @@
+//! A real sensor's values: captures and white boards that carry a black level or a
+//! dark frame, reconstructed with the rig's `black_level` or `dark`, against the same
+//! simulation without them.
+
+use super::{anaglyph, stderr};
+use anaglyph_core::io::{read_linear_image, write_png16};
+use anaglyph_core::rig::RigFile;
+use std::path::Path;
+
+/// `reconstruct` of view r0c0 of `rig` with the true disparities, scored by `eval`: PSNR.
+fn psnr_of(dir: &Path, rig: &str, out: &str) -> f64 {
+    let o = anaglyph(
+        &[
+            "reconstruct",
+            "--rig",
+            rig,
+            "--out",
+            out,
+            "--views",
+            "r0c0",
+            "--true-disparity",
+            "sim",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json = format!("{out}.json");
+    let o = anaglyph(
+        &["eval", "--truth", "sim", "--recon", out, "--json", &json],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join(&json)).unwrap()).unwrap();
+    report["mean_psnr"].as_f64().unwrap()
+}
+
+/// The simulation's captures and white boards with `dark(x, y)` added, written under
+/// `dir/name/`, and a rig `dir/name.toml` naming them, with `configure` applied to each
+/// camera entry.
+fn darkened(
+    dir: &Path,
+    name: &str,
+    dark: impl Fn(usize, usize) -> f32,
+    configure: impl Fn(&mut anaglyph_core::rig::CameraEntry),
+) {
+    for sub in ["captures", "white"] {
+        std::fs::create_dir_all(dir.join(name).join(sub)).unwrap();
+        for entry in std::fs::read_dir(dir.join("sim").join(sub)).unwrap() {
+            let path = entry.unwrap().path();
+            let mut image = read_linear_image(&path).unwrap();
+            let (w, c) = (image.width, image.channels);
+            for (i, v) in image.data.iter_mut().enumerate() {
+                let pixel = i / c;
+                *v = (*v + dark(pixel % w, pixel / w)).min(1.0);
+            }
+            let target = dir.join(name).join(sub).join(path.file_name().unwrap());
+            write_png16(&target, &image).unwrap();
+        }
+    }
+    let text = std::fs::read_to_string(dir.join("sim/rig.toml")).unwrap();
+    let mut rig = RigFile::from_toml_str(&text, "sim rig").unwrap();
+    for cam in &mut rig.cameras {
+        let file = format!("r{}c{}.png", cam.row, cam.col);
+        cam.image = Some(format!("{name}/captures/{file}").into());
+        cam.white = Some(format!("{name}/white/{file}").into());
+        cam.calibration = None;
+        configure(cam);
+    }
+    rig.save(&dir.join(format!("{name}.toml"))).unwrap();
+}
+
+#[test]
+fn black_levels_and_dark_frames_are_subtracted_before_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = anaglyph(
+        &[
+            "simulate", "--scene", "tabletop", "--size", "128x96", "--out", "sim",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let clean = psnr_of(d, "sim/rig.toml", "rec-clean");
+
+    // A 12-bit sensor's black level of 256, stored in 16 bits: 4096 of 65535.
+    let level = 4096.0 / 65535.0;
+    darkened(d, "offset", |_, _| level, |_| {});
+    let ignored = psnr_of(d, "offset.toml", "rec-ignored");
+    darkened(
+        d,
+        "black",
+        |_, _| level,
+        |cam| cam.black_level = Some(4096.0),
+    );
+    let subtracted = psnr_of(d, "black.toml", "rec-black");
+
+    // A dark frame with a fixed pattern of 1-3 % of full scale.
+    let pattern = |x: usize, y: usize| 0.01 + 0.02 * ((x * 7 + y * 3) % 5) as f32 / 4.0;
+    darkened(d, "pattern", pattern, |_| {});
+    std::fs::create_dir_all(d.join("dark")).unwrap();
+    let frame: Vec<f32> = (0..96 * 128)
+        .flat_map(|p| [pattern(p % 128, p / 128); 3])
+        .collect();
+    let frame = anaglyph_core::image::Image::new(128, 96, 3, frame).unwrap();
+    write_png16(&d.join("dark/frame.png"), &frame).unwrap();
+    darkened(d, "framed", pattern, |cam| {
+        cam.dark = Some("dark/frame.png".into())
+    });
+    let with_frame = psnr_of(d, "framed.toml", "rec-framed");
+
+    assert!(
+        subtracted > clean - 0.3 && with_frame > clean - 0.3,
+        "clean {clean:.2} dB, black level {subtracted:.2} dB, dark frame {with_frame:.2} dB"
+    );
+    assert!(
+        ignored < clean - 1.0,
+        "an offset left in should cost more than 1 dB: clean {clean:.2}, ignored {ignored:.2}"
+    );
+}
