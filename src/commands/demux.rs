@@ -97,6 +97,7 @@ fn print_report(report: &DemuxReport) {
 
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
+    super::check_output_file(&args.out, "--out")?;
     let (rows, n, c) = read_sensing(&args.sensing)?;
     if rows == 0 || n == 0 {
         bail!(

@@ -364,6 +364,19 @@ fn parsers_name_what_they_found() {
     );
     assert_clean_failure(&o, "complex64");
     assert!(!d.join("s.npy").exists());
+    let o = anaglyph(
+        &[
+            "demux",
+            "--sensing",
+            "c.npy",
+            "--measurements",
+            "c.npy",
+            "--out",
+            "missing/s.npy",
+        ],
+        d,
+    );
+    assert_clean_failure(&o, "--out missing/s.npy: the folder missing does not exist");
 }
 
 #[test]
