@@ -26,7 +26,7 @@ pub fn write_atomically(
         )
     })?;
     let prefix = format!(".{}.tmp-", file_name.to_string_lossy());
-    remove_stale(dir, &prefix);
+    super::output_folder::remove_leftovers_of_dead_runs(dir, &prefix);
     let tmp = dir.join(format!("{prefix}{}", std::process::id()));
     let result = (|| -> std::io::Result<()> {
         let file = std::fs::File::create(&tmp)?;
@@ -40,22 +40,6 @@ pub fn write_atomically(
         return Err(Error::io(path, e));
     }
     Ok(())
-}
-
-/// Removes `PREFIX{pid}` files in `dir` of processes that no longer run.
-fn remove_stale(dir: &Path, prefix: &str) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let pid = name
-            .strip_prefix(prefix)
-            .and_then(|p| p.parse::<u32>().ok());
-        if pid.is_some_and(|pid| !super::output_folder::process_is_running(pid)) {
-            let _ = std::fs::remove_file(entry.path());
-        }
-    }
 }
 
 #[cfg(test)]

@@ -232,26 +232,36 @@ fn is_empty_or_own(dir: &Path) -> Result<bool> {
 /// Removes `.NAME.partial-PID` and `.NAME.old-PID` folders of processes that no longer
 /// run (runs that were killed). Best effort: what cannot be removed stays.
 fn remove_stale_siblings(parent: &Path, name: &str) {
-    let Ok(entries) = std::fs::read_dir(parent) else {
+    for kind in [".partial-", ".old-"] {
+        remove_leftovers_of_dead_runs(parent, &format!(".{name}{kind}"));
+    }
+}
+
+/// Removes every `PREFIX{pid}` entry of `dir`, file or folder, whose process no longer
+/// runs: what a killed run left. Best effort: what cannot be removed stays.
+pub(crate) fn remove_leftovers_of_dead_runs(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
     for entry in entries.flatten() {
-        let file_name = entry.file_name().to_string_lossy().into_owned();
-        let pid = [".partial-", ".old-"].iter().find_map(|kind| {
-            let prefix = format!(".{name}{kind}");
-            file_name.strip_prefix(&prefix)?.parse::<u32>().ok()
-        });
-        if let Some(pid) = pid {
-            if !process_is_running(pid) {
-                let _ = std::fs::remove_dir_all(entry.path());
-            }
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix(prefix)
+            .and_then(|p| p.parse::<u32>().ok());
+        if pid.is_some_and(|pid| !process_is_running(pid)) {
+            let path = entry.path();
+            let _ = if path.is_dir() {
+                std::fs::remove_dir_all(&path)
+            } else {
+                std::fs::remove_file(&path)
+            };
         }
     }
 }
 
 /// Whether process `pid` runs, where the system says (`/proc`); elsewhere assumed to
 /// run, so that nothing another run is writing is ever removed.
-pub(crate) fn process_is_running(pid: u32) -> bool {
+fn process_is_running(pid: u32) -> bool {
     if pid == std::process::id() || !Path::new("/proc/self").exists() {
         return true;
     }
