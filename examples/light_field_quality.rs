@@ -29,7 +29,7 @@ use anaglyph_core::simulate::{Simulation, SimulationSettings};
 use anaglyph_core::solve::{
     ScenePriorSettings, SolveSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR,
 };
-use anaglyph_core::stereo::{MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{DisparityRange, MatchingCost, MatchingNetwork};
 use std::time::Instant;
 
 /// Margin of the search range over the scene's largest true disparity (its nearest
@@ -107,7 +107,7 @@ fn main() -> anyhow::Result<()> {
                 registration: RegistrationSettings {
                     mode: registration_mode,
                     cost: MatchingCost::Learned(&network),
-                    max_disp,
+                    range: DisparityRange::up_to(max_disp)?,
                 },
                 automatic_search_range: false,
                 matching_image,

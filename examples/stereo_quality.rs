@@ -14,7 +14,9 @@ use anaglyph_cnn::dataset::{
     rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
 };
 use anaglyph_core::scene::SceneFile;
-use anaglyph_core::stereo::{match_pair, MatchSettings, MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{
+    match_pair, DisparityRange, MatchSettings, MatchingCost, MatchingNetwork,
+};
 use std::time::Instant;
 
 /// The horizontal neighbours of the paper's 2×4 rig.
@@ -38,14 +40,15 @@ struct Score {
 }
 
 fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp: usize) -> Score {
+    let range = DisparityRange::up_to(max_disp).expect("a non-empty search range");
     let (mut bad, mut total, mut error_sum, mut error_count, mut valid) = (0, 0, 0.0, 0, 0);
     let mut seconds = 0.0;
     let mut megapixels = 0.0;
     for pair in pairs {
         let settings = if refine {
-            MatchSettings::for_cost(cost, max_disp)
+            MatchSettings::for_cost(cost, range)
         } else {
-            MatchSettings::raw(max_disp)
+            MatchSettings::raw(range)
         };
         let started = Instant::now();
         let out = match_pair(&pair.left, &pair.right, cost, &settings).expect("match");

@@ -7,14 +7,16 @@
 
 use anaglyph_cnn::dataset::{simulated_pair_with, PairSettings, StereoPair};
 use anaglyph_cnn::train::VALIDATION_SEED;
-use anaglyph_core::stereo::{match_pair, Bilateral, MatchSettings, MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{
+    match_pair, Bilateral, DisparityRange, MatchSettings, MatchingCost, MatchingNetwork,
+};
 
 fn bad2(pairs: &[StereoPair], cost: &MatchingCost<'_>, settings: &MatchSettings) -> f64 {
     let (mut bad, mut total) = (0usize, 0usize);
     for pair in pairs {
         let out = match_pair(&pair.left, &pair.right, cost, settings).expect("match");
         for (e, t) in out.disparity.data.iter().zip(&pair.disparity) {
-            if t.is_finite() && *t < settings.max_disp as f32 - 1.0 {
+            if t.is_finite() && *t < settings.range.max as f32 - 1.0 {
                 total += 1;
                 bad += usize::from(!e.is_finite() || (e - t).abs() > 2.0);
             }
@@ -47,7 +49,7 @@ fn main() -> anyhow::Result<()> {
     }
     let network = MatchingNetwork::default_fast()?;
     let cost = MatchingCost::Learned(&network);
-    let mut best = MatchSettings::mc_cnn_fast(64);
+    let mut best = MatchSettings::mc_cnn_fast(DisparityRange::up_to(64)?);
     let mut best_score = bad2(&pairs, &cost, &best);
     println!("published MC-CNN fast values: bad-2 {best_score:.2} %");
     for round in 0..3 {

@@ -2,6 +2,7 @@
 //! argument validated before any computation starts.
 
 use anaglyph_core::demux::Solver;
+use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::filters::SelectionCriterion;
 use anaglyph_core::reconstruct::{DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE};
 use anaglyph_core::rig::OutOfBand;
@@ -91,9 +92,19 @@ pub struct MatchArgs {
     /// Right image, same size.
     #[arg(long)]
     pub right: PathBuf,
-    /// Disparities searched: [0, N); x_right = x_left − d.
-    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=4096))]
-    pub max_disp: u64,
+    /// Disparities searched: [0, N); x_right = x_left − d. Shorthand for
+    /// `--disp-range 0:N`.
+    #[arg(
+        long,
+        value_parser = clap::value_parser!(u64).range(2..=4096),
+        required_unless_present = "disp_range",
+        conflicts_with = "disp_range"
+    )]
+    pub max_disp: Option<u64>,
+    /// Signed disparities searched, MIN ≤ d < MAX (e.g. `-24:8` for a pair calibrated to
+    /// a plane: points beyond it have d < 0); x_right = x_left − d.
+    #[arg(long, value_parser = parse_disparity_range, allow_hyphen_values = true)]
+    pub disp_range: Option<DisparityRange>,
     /// Output disparity (PFM; +inf where invalid).
     #[arg(long)]
     pub out: PathBuf,
@@ -532,23 +543,38 @@ pub enum ViewList {
     Some(Vec<(usize, usize)>),
 }
 
-/// `--max-disp`: a number of disparities or `auto`.
+/// `--disp-range` / `--max-disp`: a range of disparities or `auto`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SearchRangeArg {
     Auto,
-    Fixed(usize),
+    Fixed(DisparityRange),
 }
 
+/// `--max-disp N|auto`: `0:N`.
 fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
     if text.eq_ignore_ascii_case("auto") {
         return Ok(SearchRangeArg::Auto);
     }
-    match text.trim().parse::<usize>() {
-        Ok(n) if (2..=4096).contains(&n) => Ok(SearchRangeArg::Fixed(n)),
+    match text.trim().parse::<i32>() {
+        Ok(n) if (2..=4096).contains(&n) => {
+            Ok(SearchRangeArg::Fixed(DisparityRange { min: 0, max: n }))
+        }
         _ => Err(format!(
             "'{text}' (expected auto or a number of disparities in 2..=4096)"
         )),
     }
+}
+
+/// `--disp-range MIN:MAX|auto`.
+fn parse_signed_search_range(text: &str) -> Result<SearchRangeArg, String> {
+    if text.eq_ignore_ascii_case("auto") {
+        return Ok(SearchRangeArg::Auto);
+    }
+    parse_disparity_range(text).map(SearchRangeArg::Fixed)
+}
+
+fn parse_disparity_range(text: &str) -> Result<DisparityRange, String> {
+    text.parse::<DisparityRange>().map_err(|e| e.to_string())
 }
 
 fn parse_non_negative(text: &str) -> Result<f64, String> {
@@ -650,10 +676,14 @@ pub struct ReconstructArgs {
     /// C instead of the rig's; needed with exposure metadata when there is no white board.
     #[arg(long)]
     pub illuminant: Option<String>,
-    /// Disparities searched per column step: [0, N), or `auto` to choose N from a coarse
-    /// registration of the captures (recorded in the manifest).
-    #[arg(long, default_value = "auto", value_parser = parse_search_range)]
-    pub max_disp: SearchRangeArg,
+    /// Disparities searched per column step, MIN ≤ d < MAX (signed: an array calibrated
+    /// to a plane sees points beyond it at d < 0), or `auto` (the default) to choose both
+    /// ends from a coarse registration of the captures (recorded in the manifest).
+    #[arg(long, value_parser = parse_signed_search_range, allow_hyphen_values = true)]
+    pub disp_range: Option<SearchRangeArg>,
+    /// Shorthand for `--disp-range 0:N` (or `auto`).
+    #[arg(long, value_parser = parse_search_range, conflicts_with = "disp_range")]
+    pub max_disp: Option<SearchRangeArg>,
     /// The stages and tuning: `default` (every stage, the measured defaults), `fast`
     /// (a lighter scene prior: about 15 % quicker), `paper` (the paper's pipeline: Eq. 6
     /// on bilinearly warped measurements, no prior, no refinement). Tuning options
@@ -680,6 +710,15 @@ pub struct ReconstructArgs {
     pub registration: RegistrationArgs,
     #[command(flatten)]
     pub tuning: TuningArgs,
+}
+
+impl ReconstructArgs {
+    /// The search range asked for: `--disp-range`, else `--max-disp`, else `auto`.
+    pub fn search_range(&self) -> SearchRangeArg {
+        self.disp_range
+            .or(self.max_disp)
+            .unwrap_or(SearchRangeArg::Auto)
+    }
 }
 
 /// How `reconstruct` registers the array.

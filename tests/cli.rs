@@ -9,6 +9,8 @@ use std::process::{Command, Output};
 
 #[path = "cli/bad_input.rs"]
 mod bad_input;
+#[path = "cli/plane_registered.rs"]
+mod plane_registered;
 #[path = "cli/real_sensor.rs"]
 mod real_sensor;
 
@@ -587,7 +589,10 @@ fn match_writes_a_pfm_close_to_the_simulated_truth_and_rejects_bad_pairs() {
         ],
         dir.path(),
     );
-    assert_clean_failure(&o, "exceeds the image width");
+    assert_clean_failure(
+        &o,
+        "the search range 0:64 reaches 63 px, but the images are 40 px wide",
+    );
     let o = anaglyph(
         &[
             "match",

@@ -20,7 +20,9 @@ use anaglyph_core::reconstruct::{plot_probe, plot_series, Probe};
 use anaglyph_core::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
 use anaglyph_core::simulate::Simulation;
 use anaglyph_core::spectrum::{ResponseCurve, SpectralShape};
-use anaglyph_core::stereo::{match_pair, GreyImage, MatchSettings, MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{
+    match_pair, DisparityRange, GreyImage, MatchSettings, MatchingCost, MatchingNetwork,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -101,7 +103,7 @@ fn stereo_on_neighbours(
                 &grey(&left.capture, left.channels),
                 &grey(&right.capture, right.channels),
                 cost,
-                &MatchSettings::for_cost(cost, max_disp),
+                &MatchSettings::for_cost(cost, DisparityRange::up_to(max_disp)?),
             )?;
             seconds += start.elapsed().as_secs_f64();
             pairs += 1;

@@ -15,7 +15,7 @@ use anaglyph_core::register::{
 use anaglyph_core::rig::Rig;
 use anaglyph_core::scene::{Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{write_simulation, Simulation, SimulationSettings};
-use anaglyph_core::stereo::{MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{DisparityRange, MatchingCost, MatchingNetwork};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -148,7 +148,7 @@ pub fn run_presets(
             registration: RegistrationSettings {
                 mode: DEFAULT_REGISTRATION,
                 cost: MatchingCost::Learned(&network),
-                max_disp,
+                range: DisparityRange::up_to(max_disp)?,
             },
             automatic_search_range: false,
             white_reflectance: simulation.settings.white_reflectance,
@@ -188,7 +188,7 @@ pub fn run_presets(
             truth_map,
             width,
             height,
-            max_true,
+            [0.0, max_true],
         )?;
         let bad = field.views[0]
             .disparity

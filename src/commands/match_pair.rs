@@ -7,7 +7,7 @@ use crate::cli::{ChannelChoice, LeftRightChoice, MatchArgs, MatchMethod};
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
 use anaglyph_core::stereo::{
-    match_pair, GreyImage, LeftRight, MatchSettings, MatchingCost, MatchingNetwork,
+    match_pair, DisparityRange, GreyImage, LeftRight, MatchSettings, MatchingCost, MatchingNetwork,
 };
 use std::path::Path;
 use std::time::Instant;
@@ -97,10 +97,17 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             right.height
         );
     }
-    let max_disp = args.max_disp as usize;
-    if max_disp > left.width {
+    let range = match (args.disp_range, args.max_disp) {
+        (Some(range), _) => range,
+        (None, Some(n)) => DisparityRange::up_to(n as usize)?,
+        (None, None) => {
+            anyhow::bail!("give the disparities searched: --disp-range MIN:MAX or --max-disp N")
+        }
+    };
+    if range.magnitude() >= left.width {
         anyhow::bail!(
-            "--max-disp {max_disp} exceeds the image width {}",
+            "the search range {range} reaches {} px, but the images are {} px wide",
+            range.magnitude(),
             left.width
         );
     }
@@ -114,11 +121,11 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     let network = load_network(args.method, args.model.as_deref())?;
     let cost = matching_cost(args.method, network.as_ref())?;
     let mut settings = if args.raw {
-        MatchSettings::raw(max_disp)
+        MatchSettings::raw(range)
     } else if args.published {
-        MatchSettings::published_for_cost(&cost, max_disp)
+        MatchSettings::published_for_cost(&cost, range)
     } else {
-        MatchSettings::for_cost(&cost, max_disp)
+        MatchSettings::for_cost(&cost, range)
     };
     if args.no_aggregation {
         settings.aggregation_before_sgm = None;
@@ -143,7 +150,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         settings.bilateral = None;
     }
     let bar = spinner(format!(
-        "matching {}×{} with {} over {max_disp} disparities",
+        "matching {}×{} with {} over disparities {range}",
         left.width,
         left.height,
         cost.name()
@@ -153,17 +160,18 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     write_pfm(&args.out, &out.disparity.to_pfm())?;
     let map = &out.disparity;
     if let Some(path) = &args.preview {
-        write_disparity_preview(path, &map.data, map.width, map.height, max_disp as f32)?;
+        let span = [range.min as f32, (range.max - 1) as f32];
+        write_disparity_preview(path, &map.data, map.width, map.height, span)?;
     }
     let valid = map.data.iter().filter(|d| d.is_finite()).count();
     let total: f64 = out.timings.iter().map(|t| t.1).sum();
     let megapixels = (map.width * map.height) as f64 / 1e6;
     eprintln!(
-        "{}: {}×{}, {} disparities, {} ({:.1} % valid) in {}",
+        "{}: {}×{}, {} disparities ({range}), {} ({:.1} % valid) in {}",
         cost.name(),
         map.width,
         map.height,
-        max_disp,
+        range.count(),
         args.out.display(),
         100.0 * valid as f64 / map.data.len().max(1) as f64,
         format_seconds(total)
@@ -172,7 +180,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         eprintln!(
             "  {stage:<24} {:>10}  ({:.3} s per Mpx per 100 disparities)",
             format_seconds(*seconds),
-            seconds / megapixels / (max_disp as f64 / 100.0)
+            seconds / megapixels / (range.count() as f64 / 100.0)
         );
     }
     if let Some(path) = &args.report {
@@ -180,7 +188,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             "left": args.left,
             "right": args.right,
             "method": cost.name(),
-            "max_disp": max_disp,
+            "disp_range": range,
             "width": map.width,
             "height": map.height,
             "valid_fraction": valid as f64 / map.data.len().max(1) as f64,

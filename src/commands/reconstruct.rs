@@ -171,8 +171,8 @@ fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> Pipe
         RegistrationChoice::MultiBaseline => RegistrationMode::MultiBaseline,
         RegistrationChoice::Pairwise => RegistrationMode::Pairwise,
     };
-    if let SearchRangeArg::Fixed(n) = args.max_disp {
-        settings.registration.max_disp = n;
+    if let SearchRangeArg::Fixed(range) = args.search_range() {
+        settings.registration.range = range;
         settings.automatic_search_range = false;
     }
     settings.white_reflectance = args.white_reflectance;
@@ -271,8 +271,8 @@ fn manifest_parameters(
         "true_disparity": path(&args.true_disparity),
         "method": format!("{:?}", args.registration.method),
         "model": path(&args.registration.model),
-        "max_disp": match args.max_disp {
-            SearchRangeArg::Fixed(n) => serde_json::json!(n),
+        "disp_range": match args.search_range() {
+            SearchRangeArg::Fixed(range) => serde_json::json!(range),
             SearchRangeArg::Auto => serde_json::json!("auto"),
         },
         "white_reflectance": args.white_reflectance,
@@ -307,8 +307,8 @@ fn print_summary(field: &LightField) {
     );
     if let Some(range) = &field.search_range {
         println!(
-            "  search range [0, {}) chosen from a {}x coarse registration (98 % of disparities below {:.1} px)",
-            range.max_disp, range.factor, range.covered_disparity_px
+            "  search range {} chosen from a {}x coarse registration (96 % of disparities within {:.1} to {:.1} px)",
+            range.range, range.factor, range.covered_disparity_px[0], range.covered_disparity_px[1]
         );
     }
     for view in &field.views {
@@ -329,6 +329,7 @@ fn print_summary(field: &LightField) {
 mod tests {
     use super::*;
     use crate::cli::{Args, Command};
+    use anaglyph_core::disparity::DisparityRange;
     use clap::Parser;
 
     fn settings_of(extra: &[&str]) -> PipelineSettings<'static> {
@@ -365,8 +366,18 @@ mod tests {
         assert!(no_prior.solve.scene_prior.is_none());
         assert!(no_prior.solve.inconsistency_factor.is_none());
         no_prior.validate().unwrap();
-        assert_eq!(no_prior.registration.max_disp, 40);
+        assert_eq!(
+            no_prior.registration.range,
+            DisparityRange { min: 0, max: 40 }
+        );
         assert!(!no_prior.automatic_search_range);
+        let signed = settings_of(&["--disp-range", "-24:8"]);
+        assert_eq!(
+            signed.registration.range,
+            DisparityRange { min: -24, max: 8 }
+        );
+        assert!(!signed.automatic_search_range);
+        assert!(settings_of(&["--disp-range", "auto"]).automatic_search_range);
 
         let off = settings_of(&["--disputed-tolerance", "0", "--refine-confidence", "0"]);
         assert!(off.solve.disputed_tolerance.is_none());

@@ -10,7 +10,9 @@ use crate::dataset::{
 };
 use crate::model::MatchingNet;
 use crate::{Architecture, Result};
-use anaglyph_core::stereo::{learned_cost_volume, winner_take_all, MatchingNetwork};
+use anaglyph_core::stereo::{
+    learned_cost_volume, winner_take_all, DisparityRange, MatchingNetwork,
+};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use rand::{Rng, SeedableRng};
@@ -200,7 +202,11 @@ pub fn winner_take_all_bad2(network: &MatchingNetwork, pairs: &[&StereoPair]) ->
     let (mut bad, mut total) = (0usize, 0usize);
     for pair in pairs {
         let max_disp = 64.min(pair.left.width);
-        let volume = learned_cost_volume(network, &pair.left, &pair.right, max_disp);
+        let range = DisparityRange {
+            min: 0,
+            max: max_disp as i32,
+        };
+        let volume = learned_cost_volume(network, &pair.left, &pair.right, range);
         let estimate = winner_take_all(&volume);
         for (e, t) in estimate.iter().zip(&pair.disparity) {
             if t.is_finite() && *t < max_disp as f32 - 1.0 {

@@ -4,7 +4,9 @@
 use anaglyph_cnn::dataset::{sample_triplets, simulated_pair, Augmentation, PairSettings, PATCH};
 use anaglyph_cnn::train::to_inference;
 use anaglyph_cnn::{train, Architecture, MatchingNet, TrainSettings};
-use anaglyph_core::stereo::{learned_cost_volume, tower_features, GreyImage, MatchingNetwork};
+use anaglyph_core::stereo::{
+    learned_cost_volume, tower_features, DisparityRange, GreyImage, MatchingNetwork,
+};
 use candle_core::{Device, Tensor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -74,15 +76,18 @@ fn accurate_costs_equal_the_candle_head_on_patches() {
     let (left, right) = (random_image(w, h, 2), random_image(w, h, 3));
     let net = MatchingNet::new(SMALL_ACCURATE, &Device::Cpu).unwrap();
     let inference = to_inference(&net).unwrap();
-    let volume = learned_cost_volume(&inference, &left, &right, 6);
+    // A signed range: the head also runs where the right pixel lies right of the left one.
+    let range = DisparityRange::new(-2, 4).unwrap();
+    let volume = learned_cost_volume(&inference, &left, &right, range);
     let fl = tower_features(&inference, &left);
     let fr = tower_features(&inference, &right);
-    for (x, y, d) in [(5, 4, 0), (9, 7, 3), (19, 11, 5), (6, 0, 2)] {
+    for (x, y, d) in [(5, 4, 0i32), (9, 7, 3), (17, 11, -2), (6, 0, 2), (19, 3, 3)] {
         let a = Tensor::from_slice(fl.pixel(x, y), (1, fl.channels), &Device::Cpu).unwrap();
-        let b = Tensor::from_slice(fr.pixel(x - d, y), (1, fr.channels), &Device::Cpu).unwrap();
+        let xr = (x as i32 - d) as usize;
+        let b = Tensor::from_slice(fr.pixel(xr, y), (1, fr.channels), &Device::Cpu).unwrap();
         let logit: f32 = net.similarity(&a, &b).unwrap().to_vec1().unwrap()[0];
         let want = 1.0 / (1.0 + logit.exp());
-        let got = volume.pixel(x, y)[d];
+        let got = volume.pixel(x, y)[(d - range.min) as usize];
         assert!(
             (got - want).abs() < 1e-4,
             "({x}, {y}, {d}): {got} vs {want}"

@@ -7,7 +7,7 @@
 use anaglyph_core::register::{
     multi_baseline_disparities, ArrayGeometry, GridImage, RegistrationMode, RegistrationSettings,
 };
-use anaglyph_core::stereo::{GreyImage, MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{DisparityRange, GreyImage, MatchingCost, MatchingNetwork};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 
 const W: usize = 320;
@@ -62,7 +62,7 @@ fn registration(c: &mut Criterion) {
     let settings = RegistrationSettings {
         mode: RegistrationMode::MultiBaseline,
         cost: MatchingCost::Learned(&network),
-        max_disp: D,
+        range: DisparityRange::up_to(D).unwrap(),
     };
     let once = multi_baseline_disparities(&images, &geometry, &settings, &|_, _| {})
         .expect("registration");

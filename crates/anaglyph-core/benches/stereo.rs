@@ -5,14 +5,19 @@
 
 use anaglyph_core::stereo::{
     bilateral_filter, census_cost_volume, learned_cost_volume, median_filter, normalise_image,
-    semi_global_matching, tower_features, winner_take_all, Bilateral, GreyImage, MatchingNetwork,
-    SgmParameters,
+    semi_global_matching, tower_features, winner_take_all, Bilateral, DisparityRange, GreyImage,
+    MatchingNetwork, SgmParameters,
 };
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 
 const W: usize = 370;
 const H: usize = 250;
 const D: usize = 64;
+
+/// The disparities searched, `[0, D)`.
+fn range() -> DisparityRange {
+    DisparityRange::up_to(D).expect("a non-empty range")
+}
 
 /// A textured pair: right(x) = left(x + 7) with a gain, so the costs have a real minimum.
 fn pair() -> (GreyImage, GreyImage) {
@@ -41,12 +46,12 @@ fn stages(c: &mut Criterion) {
         b.iter(|| tower_features(&network, &left))
     });
     group.bench_function("mccnn_cost_volume", |b| {
-        b.iter(|| learned_cost_volume(&network, &left, &right, D))
+        b.iter(|| learned_cost_volume(&network, &left, &right, range()))
     });
     group.bench_function("census_cost_volume", |b| {
-        b.iter(|| census_cost_volume(&left, &right, D))
+        b.iter(|| census_cost_volume(&left, &right, range()))
     });
-    let volume = census_cost_volume(&left, &right, D);
+    let volume = census_cost_volume(&left, &right, range());
     let params = SgmParameters::MC_CNN_FAST_KITTI;
     group.bench_function("sgm_4_paths", |b| {
         b.iter(|| semi_global_matching(&volume, &left, &right, &params))

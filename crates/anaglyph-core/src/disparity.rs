@@ -11,11 +11,129 @@
 //! A horizontal pair whose right camera is the left one's column neighbour reads the same
 //! numbers in both. In memory, unknown disparities are NaN in both conventions; PFM files
 //! mark them +inf ([`DisparityMap::to_pfm`], [`DisparityMap::from_pfm`]).
+//!
+//! Disparities are signed. An array rectified to infinity sees every point at d ≥ 0; an
+//! array calibrated to a plane (every camera mapped onto the reference through a
+//! checkerboard at the working distance) sees that plane at d = 0, nearer points at d > 0
+//! and farther ones at d < 0. What is searched is a [`DisparityRange`].
 
 use crate::image::Image;
 use crate::io::PfmImage;
 use crate::{Error, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// Largest magnitude of a searched disparity (pixels).
+pub const MAX_DISPARITY_MAGNITUDE: i32 = 1 << 15;
+
+/// The disparities searched, `min ≤ d < max` (whole pixels; `--max-disp N` is `0:N`,
+/// `--disp-range -24:8` searches 32 disparities from −24 to 7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisparityRange {
+    pub min: i32,
+    /// One past the largest disparity searched.
+    pub max: i32,
+}
+
+impl DisparityRange {
+    /// `[min, max)`: an error unless `min < max` and both lie within
+    /// ±[`MAX_DISPARITY_MAGNITUDE`].
+    pub fn new(min: i32, max: i32) -> Result<Self> {
+        if min >= max {
+            return Err(Error::mismatch(
+                "disparity range",
+                format!("{min}:{max}"),
+                "MIN:MAX with MIN < MAX (MAX is one past the largest disparity searched)",
+            ));
+        }
+        for (name, v) in [("smallest", min), ("largest", max)] {
+            if v.abs() > MAX_DISPARITY_MAGNITUDE {
+                return Err(Error::out_of_range(
+                    format!("{name} disparity of the range"),
+                    v as f64,
+                    format!("within ±{MAX_DISPARITY_MAGNITUDE}"),
+                ));
+            }
+        }
+        Ok(DisparityRange { min, max })
+    }
+
+    /// `[0, count)`, the range of an array rectified to infinity.
+    pub fn up_to(count: usize) -> Result<Self> {
+        let max = i32::try_from(count).unwrap_or(i32::MAX);
+        Self::new(0, max)
+    }
+
+    /// How many disparities are searched.
+    pub fn count(&self) -> usize {
+        (self.max as i64 - self.min as i64).max(0) as usize
+    }
+
+    /// The disparity at index `k` of a cost volume over this range.
+    pub fn at(&self, k: usize) -> f32 {
+        (self.min as i64 + k as i64) as f32
+    }
+
+    /// The range covering every disparity of this one times `factor` (> 0), e.g. a
+    /// column-step range in pixels along a vertical baseline `b_y/b_x` times as long.
+    pub fn scaled(&self, factor: f64) -> Self {
+        let min = (self.min as f64 * factor).floor() as i32;
+        let max = ((self.max as f64 * factor).ceil() as i32).max(min + 1);
+        DisparityRange { min, max }
+    }
+
+    /// Whether `d` lies between the smallest and the largest disparity searched.
+    pub fn contains(&self, d: f32) -> bool {
+        d >= self.min as f32 && d <= (self.max - 1) as f32
+    }
+
+    /// The largest disparity magnitude searched.
+    pub fn magnitude(&self) -> usize {
+        self.min.unsigned_abs().max((self.max - 1).unsigned_abs()) as usize
+    }
+
+    /// Checks that images `width` pixels wide can overlap at every disparity searched.
+    pub fn check_width(&self, width: usize, what: &str) -> Result<()> {
+        if self.count() < 2 || self.magnitude() >= width {
+            return Err(Error::mismatch(
+                format!("disparity range {self} against {what}"),
+                format!(
+                    "{} disparities, up to {} px",
+                    self.count(),
+                    self.magnitude()
+                ),
+                format!("at least 2 disparities, each smaller than the width {width}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for DisparityRange {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.min, self.max)
+    }
+}
+
+impl FromStr for DisparityRange {
+    type Err = Error;
+
+    /// `MIN:MAX`, e.g. `-24:8`.
+    fn from_str(text: &str) -> Result<Self> {
+        let bad = || {
+            Error::mismatch(
+                "disparity range",
+                format!("'{text}'"),
+                "MIN:MAX in whole pixels, e.g. -24:8 (MAX one past the largest searched)",
+            )
+        };
+        let (min, max) = text.trim().split_once(':').ok_or_else(bad)?;
+        let parse = |v: &str| v.trim().parse::<i32>().map_err(|_| bad());
+        Self::new(parse(min)?, parse(max)?)
+    }
+}
 
 /// What a disparity value means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -154,6 +272,31 @@ impl DisparityMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_range_reads_min_colon_max_and_refuses_an_empty_one() {
+        let r: DisparityRange = "-24:8".parse().unwrap();
+        assert_eq!((r.min, r.max, r.count(), r.magnitude()), (-24, 8, 32, 24));
+        assert_eq!((r.at(0), r.at(31)), (-24.0, 7.0));
+        assert!(r.contains(-24.0) && r.contains(7.0) && !r.contains(7.5) && !r.contains(-24.1));
+        assert_eq!(r.to_string(), "-24:8");
+        assert_eq!(
+            DisparityRange::up_to(64).unwrap(),
+            DisparityRange { min: 0, max: 64 }
+        );
+        for bad in ["8:8", "8:-24", "-24", "a:b", "1:99999999"] {
+            let kind = bad.parse::<DisparityRange>().err().map(|e| e.kind());
+            assert!(
+                kind == Some("Mismatch") || kind == Some("OutOfRange"),
+                "{bad}"
+            );
+        }
+        assert!(r.check_width(25, "the images").is_ok());
+        assert_eq!(
+            r.check_width(24, "the images").err().map(|e| e.kind()),
+            Some("Mismatch")
+        );
+    }
 
     #[test]
     fn pfm_marks_unknown_as_infinity_and_back() {

@@ -14,7 +14,7 @@ use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile};
 use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
 use anaglyph_core::solve::SolveSettings;
-use anaglyph_core::stereo::MatchingCost;
+use anaglyph_core::stereo::{DisparityRange, MatchingCost};
 use std::path::Path;
 
 const WIDTH: usize = 160;
@@ -169,7 +169,7 @@ fn true_disparities_hold_again_after_rectification() {
         registration: RegistrationSettings {
             mode: RegistrationMode::Pairwise,
             cost: MatchingCost::Census,
-            max_disp: 16,
+            range: DisparityRange::up_to(16).unwrap(),
         },
         automatic_search_range: false,
         given_disparities: Some(ideal.disparity_maps()),
@@ -233,7 +233,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         registration: RegistrationSettings {
             mode: RegistrationMode::MultiBaseline,
             cost: MatchingCost::Learned(&network),
-            max_disp: 16,
+            range: DisparityRange::up_to(16).unwrap(),
         },
         automatic_search_range: false,
         given_disparities: None,

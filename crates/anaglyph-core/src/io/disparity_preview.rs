@@ -24,13 +24,14 @@ pub fn ramp_colour(t: f32) -> [u8; 3] {
     [0, 1, 2].map(|c| ((RAMP[i][c] * (1.0 - f) + RAMP[i + 1][c] * f) * 255.0).round() as u8)
 }
 
-/// Writes `disparity` (row-major, NaN or infinite = invalid) mapped over `[0, max]`.
+/// Writes `disparity` (row-major, NaN or infinite = invalid) mapped over `span`
+/// (`[far, near]`: the smallest disparity is the coolest colour).
 pub fn write_disparity_preview(
     path: &Path,
     disparity: &[f32],
     width: usize,
     height: usize,
-    max: f32,
+    span: [f32; 2],
 ) -> Result<()> {
     if disparity.len() != width * height || width == 0 || height == 0 {
         return Err(Error::Shape {
@@ -39,12 +40,13 @@ pub fn write_disparity_preview(
             expected: vec![width * height],
         });
     }
-    let scale = if max > 0.0 { 1.0 / max } else { 1.0 };
+    let [far, near] = span;
+    let scale = if near > far { 1.0 / (near - far) } else { 1.0 };
     let pixels: Vec<u8> = disparity
         .iter()
         .flat_map(|&d| {
             if d.is_finite() {
-                ramp_colour(d * scale)
+                ramp_colour((d - far) * scale)
             } else {
                 [0, 0, 0]
             }

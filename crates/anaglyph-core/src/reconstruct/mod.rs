@@ -50,7 +50,9 @@ pub use summary::ViewSummary;
 
 use crate::disparity::DisparityMap;
 use crate::rectify::Rectification;
-use crate::register::{CommonSignal, SearchRange, Visibility, LOW_AGREEMENT_WARNING};
+use crate::register::{
+    check_search_range, ArrayGeometry, CommonSignal, SearchRange, Visibility, LOW_AGREEMENT_WARNING,
+};
 use crate::rig::Rig;
 use crate::solve::{SolvePlan, SolveReport, SolveSettings};
 use crate::{Error, Result};
@@ -141,6 +143,15 @@ pub fn reconstruct(
 ) -> Result<LightField> {
     settings.validate()?;
     check_captures_follow_rig(rig, captures)?;
+    if !settings.automatic_search_range && settings.given_disparities.is_none() {
+        let geometry = ArrayGeometry::of_rig(rig);
+        check_search_range(
+            settings.registration.range,
+            &geometry,
+            captures.width,
+            captures.height,
+        )?;
+    }
     check_capture_signal(captures, settings.saturation_level)?;
     let requested = requested_views(rig, settings.views.as_deref())?;
     let plan = SolvePlan::new(&settings.solve)?;

@@ -125,13 +125,14 @@ pub fn write_light_field(
         create_dir(&dir.join("probes"))?;
     }
     let clock = std::time::Instant::now();
-    // One colour scale for every view's disparity preview.
-    let max_disparity = field
+    // One colour scale for every view's disparity preview, from 0 or the farthest
+    // (most negative) disparity to the nearest.
+    let span = field
         .views
         .iter()
         .flat_map(|v| v.disparity.data.iter())
         .filter(|d| d.is_finite())
-        .fold(0.0f32, |a, &b| a.max(b));
+        .fold([0.0f32, 0.0f32], |[lo, hi], &d| [lo.min(d), hi.max(d)]);
     for view in &field.views {
         let name = format!("r{}c{}", view.row, view.col);
         let camera = rig
@@ -144,7 +145,7 @@ pub fn write_light_field(
                 available: "the rig's cameras".into(),
             })?;
         write_cube(dir, &name, field, view)?;
-        write_disparity(dir, &name, field, view, max_disparity)?;
+        write_disparity(dir, &name, field, view, span)?;
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
         pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
@@ -182,13 +183,13 @@ fn write_disparity(
     name: &str,
     field: &LightField,
     view: &ReconstructedView,
-    max_disparity: f32,
+    span: [f32; 2],
 ) -> Result<()> {
     let (w, h) = (field.width, field.height);
     let pfm = dir.join(format!("disparity/{name}.pfm"));
     write_pfm(&pfm, &view.disparity.to_pfm())?;
     let png = dir.join(format!("disparity/{name}.png"));
-    write_disparity_preview(&png, &view.disparity.data, w, h, max_disparity)?;
+    write_disparity_preview(&png, &view.disparity.data, w, h, span)?;
     Ok(())
 }
 

@@ -95,7 +95,7 @@ fn estimate_maps(
     let mut search_range = None;
     if settings.automatic_search_range {
         let range = estimate_search_range(&images, geometry, &registration_settings)?;
-        registration_settings.max_disp = range.max_disp;
+        registration_settings.range = range.range;
         log.timings
             .push(("search range".to_string(), range.seconds));
         search_range = Some(range);

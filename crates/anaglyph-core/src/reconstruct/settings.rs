@@ -2,7 +2,7 @@
 //! ([`PipelineSettings::validate`]).
 
 use crate::demux::DemuxOptions;
-use crate::disparity::DisparityMap;
+use crate::disparity::{DisparityMap, DisparityRange};
 use crate::register::{MatchingImage, RegistrationSettings, WarpKernel, DEFAULT_REGISTRATION};
 use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::MatchingCost;
@@ -10,7 +10,7 @@ use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
 /// The default search range, per column step, when none is given or estimated.
-pub const DEFAULT_MAX_DISP: usize = 64;
+pub const DEFAULT_MAX_DISP: i32 = 64;
 /// The default reflectance of the white board.
 pub const DEFAULT_WHITE_REFLECTANCE: f64 = 0.95;
 /// The default saturation level, as a fraction of full scale.
@@ -74,7 +74,7 @@ impl Preset {
 #[derive(Debug, Clone)]
 pub struct PipelineSettings<'a> {
     pub registration: RegistrationSettings<'a>,
-    /// Choose `registration.max_disp` from the captures
+    /// Choose `registration.range` from the captures
     /// ([`crate::register::estimate_search_range`]).
     pub automatic_search_range: bool,
     /// What multi-baseline registration compares the views by (pairwise registration
@@ -110,7 +110,10 @@ impl<'a> PipelineSettings<'a> {
             registration: RegistrationSettings {
                 mode: DEFAULT_REGISTRATION,
                 cost,
-                max_disp: DEFAULT_MAX_DISP,
+                range: DisparityRange {
+                    min: 0,
+                    max: DEFAULT_MAX_DISP,
+                },
             },
             automatic_search_range: true,
             matching_image: preset.matching_image(),
@@ -140,12 +143,9 @@ impl<'a> PipelineSettings<'a> {
                 expected: "in (0, 1]".into(),
             });
         }
-        if self.registration.max_disp == 0 && self.given_disparities.is_none() {
-            return Err(Error::OutOfRange {
-                setting: "search range".into(),
-                value: 0.0,
-                expected: "at least 1 disparity".into(),
-            });
+        if self.given_disparities.is_none() {
+            let range = self.registration.range;
+            DisparityRange::new(range.min, range.max)?;
         }
         self.solve.validate()
     }

@@ -180,8 +180,16 @@ impl CameraModel {
         let rc = apply(&rotation, c);
         CameraModel {
             camera_matrix: [
-                [f, 0.0, 0.5 * camera.width as f64 - 0.5],
-                [0.0, f, 0.5 * camera.height as f64 - 0.5],
+                [
+                    f,
+                    0.0,
+                    0.5 * camera.width as f64 - 0.5 + camera.principal_offset_px[0],
+                ],
+                [
+                    0.0,
+                    f,
+                    0.5 * camera.height as f64 - 0.5 + camera.principal_offset_px[1],
+                ],
                 [0.0, 0.0, 1.0],
             ],
             distortion: vec![0.0; 5],
@@ -284,6 +292,7 @@ mod tests {
             focal_px: 812.0,
             width: 320,
             height: 240,
+            principal_offset_px: [3.0, -2.0],
         };
         let model = CameraModel::from_pinhole(&camera);
         let text = model.to_file_storage_json();
@@ -342,6 +351,7 @@ mod tests {
             focal_px: 500.0,
             width: 640,
             height: 480,
+            principal_offset_px: [0.0; 2],
         });
         model.distortion = vec![0.1, 0.0, 0.0, 0.0, 0.0];
         // x' = 0.4 at r² = 0.16: x'' = 0.4 (1 + 0.016) = 0.4064 → 500 · 0.4064 + 319.5.

@@ -29,7 +29,7 @@
 //! fractional disparities and its neighbours' maps. Out: the map, changed in place; the
 //! count of replaced pixels.
 
-use crate::stereo::CostVolume;
+use crate::stereo::{CostVolume, DisparityRange};
 use rayon::prelude::*;
 
 /// Cost margin over the best cost within which another local minimum makes a pixel
@@ -71,7 +71,7 @@ impl Ambiguity {
     /// Scans every pixel's costs in `volume` (see the module docs); costs at or above
     /// [`CostVolume::INVALID`] (no view sees the match) take part in neither test.
     pub fn of_volume(volume: &CostVolume) -> Self {
-        let dm = volume.max_disp;
+        let dm = volume.count();
         let (ambiguous, median_cost): (Vec<bool>, Vec<f32>) = volume
             .data
             .par_chunks(dm.max(1))
@@ -87,7 +87,7 @@ impl Ambiguity {
                     return (false, f32::NAN);
                 };
                 let bar = costs[best] + AMBIGUITY_MARGIN;
-                let ambiguous = (1..dm.saturating_sub(1)).any(|d| {
+                let ambiguous = (1..dm.saturating_sub(1)).any(|d: usize| {
                     d.abs_diff(best) >= SEPARATION
                         && usable(costs[d])
                         && costs[d] <= bar
@@ -504,16 +504,16 @@ pub fn vote_with_neighbours(
 /// Moves the pixels of each region more than [`REPLACE_BEYOND_PX`] off its plane onto it,
 /// where the plane's cost is below the median of the pixel's costs (see the module docs);
 /// `cost(x, y, d)` is the view's multi-view cost at a fractional disparity, searched over
-/// `[0, max_disp)`. Returns how many pixels changed.
+/// `range`. Returns how many pixels changed.
 pub fn apply_region_planes(
     disparity: &mut [f32],
     ambiguity: &Ambiguity,
-    max_disp: usize,
+    range: DisparityRange,
     regions: &[RegionPlane],
     cost: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
 ) -> usize {
     let w = ambiguity.width;
-    if disparity.len() != w * ambiguity.height || max_disp < 2 {
+    if disparity.len() != w * ambiguity.height || range.count() < 2 {
         return 0;
     }
     let mut replaced = 0;
@@ -529,7 +529,7 @@ pub fn apply_region_planes(
                 let on_plane = plane.at(x, y) as f32;
                 let own = disparity[i];
                 let off = !(own.is_finite() && (own - on_plane).abs() <= REPLACE_BEYOND_PX);
-                let inside = on_plane >= 0.0 && on_plane <= (max_disp - 1) as f32;
+                let inside = range.contains(on_plane);
                 (off && inside && cost(x, y, on_plane) < ambiguity.median_cost[i])
                     .then_some((i, on_plane))
             })
@@ -546,11 +546,11 @@ pub fn apply_region_planes(
 pub fn resolve_ambiguous_planes(
     disparity: &mut [f32],
     ambiguity: &Ambiguity,
-    max_disp: usize,
+    range: DisparityRange,
     cost: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
 ) -> usize {
     let regions = region_planes(disparity, ambiguity);
-    apply_region_planes(disparity, ambiguity, max_disp, &regions, cost)
+    apply_region_planes(disparity, ambiguity, range, &regions, cost)
 }
 
 #[cfg(test)]
@@ -562,15 +562,18 @@ mod tests {
     /// periods off, and the plane brings every pixel back.
     #[test]
     fn a_periodic_plane_is_recovered_from_column_aliases() {
-        let (w, h, dm, period) = (120usize, 90usize, 64usize, 7.0f32);
-        let truth = |x: usize, y: usize| 20.0 + 0.05 * x as f32 + 0.02 * y as f32;
+        // A plane behind the calibration plane and across it: signed disparities.
+        let (w, h, period) = (120usize, 90usize, 7.0f32);
+        let range = DisparityRange::new(-40, 24).unwrap();
+        let dm = range.count();
+        let truth = |x: usize, y: usize| -10.0 + 0.05 * x as f32 + 0.02 * y as f32;
         let mut rng = SplitMix(42);
         let mut noise = || (rng.next() % 1000) as f32 / 1000.0 * 0.004;
-        let mut volume = CostVolume::new(w, h, dm);
+        let mut volume = CostVolume::new(w, h, range);
         for y in 0..h {
             for x in 0..w {
                 for d in 0..dm {
-                    let phase = 2.0 * std::f32::consts::PI * (d as f32 - truth(x, y)) / period;
+                    let phase = 2.0 * std::f32::consts::PI * (range.at(d) - truth(x, y)) / period;
                     volume.data[(y * w + x) * dm + d] = 0.3 - 0.1 * phase.cos() + noise();
                 }
             }
@@ -589,7 +592,7 @@ mod tests {
             .collect();
         let ambiguity = Ambiguity::of_volume(&volume);
         assert!(ambiguity.ambiguous.iter().filter(|&&a| a).count() > w * h * 9 / 10);
-        let changed = resolve_ambiguous_planes(&mut disparity, &ambiguity, dm, &cost);
+        let changed = resolve_ambiguous_planes(&mut disparity, &ambiguity, range, &cost);
         assert!(changed > w * h / 2, "changed {changed}");
         let worst = (0..w * h)
             .map(|i| (disparity[i] - truth(i % w, i / w)).abs())
@@ -601,7 +604,7 @@ mod tests {
     #[test]
     fn a_clear_minimum_leaves_the_map_alone() {
         let (w, h, dm) = (80usize, 60usize, 32usize);
-        let mut volume = CostVolume::new(w, h, dm);
+        let mut volume = CostVolume::new(w, h, DisparityRange::up_to(dm).unwrap());
         let truth = |x: usize| 5.0 + 0.2 * x as f32;
         for y in 0..h {
             for x in 0..w {
@@ -617,7 +620,12 @@ mod tests {
         let before = disparity.clone();
         let cost = |_: usize, _: usize, _: f32| 0.0;
         assert_eq!(
-            resolve_ambiguous_planes(&mut disparity, &ambiguity, dm, &cost),
+            resolve_ambiguous_planes(
+                &mut disparity,
+                &ambiguity,
+                DisparityRange::up_to(dm).unwrap(),
+                &cost
+            ),
             0
         );
         assert_eq!(disparity, before);
@@ -640,7 +648,7 @@ mod tests {
             }
         };
         let mut rng = SplitMix(7);
-        let mut volume = CostVolume::new(w, h, dm);
+        let mut volume = CostVolume::new(w, h, DisparityRange::up_to(dm).unwrap());
         for y in 0..h {
             for x in 0..w {
                 for d in 0..dm {
@@ -660,7 +668,12 @@ mod tests {
             })
             .collect();
         let ambiguity = Ambiguity::of_volume(&volume);
-        resolve_ambiguous_planes(&mut disparity, &ambiguity, dm, &cost);
+        resolve_ambiguous_planes(
+            &mut disparity,
+            &ambiguity,
+            DisparityRange::up_to(dm).unwrap(),
+            &cost,
+        );
         for y in 0..h {
             for x in 0..w {
                 let d = disparity[y * w + x];
@@ -684,7 +697,7 @@ mod tests {
             0.3 - 0.1 * phase.cos()
         };
         let mut rng = SplitMix(3);
-        let mut volume = CostVolume::new(w, h, dm);
+        let mut volume = CostVolume::new(w, h, DisparityRange::up_to(dm).unwrap());
         for (i, slot) in volume.data.iter_mut().enumerate() {
             let (p, d) = (i / dm, i % dm);
             *slot = cost(p % w, p / w, d as f32) + (rng.next() % 1000) as f32 / 1000.0 * 0.004;
@@ -716,7 +729,13 @@ mod tests {
         );
         assert_eq!(changed, 1);
         let mut planar = view.clone();
-        apply_region_planes(&mut planar, &ambiguity, dm, &regions, &cost);
+        apply_region_planes(
+            &mut planar,
+            &ambiguity,
+            DisparityRange::up_to(dm).unwrap(),
+            &regions,
+            &cost,
+        );
         for (i, d) in planar.iter().enumerate() {
             assert!((d - truth(i % w)).abs() < 0.6, "pixel {i}: {d}");
         }

@@ -47,7 +47,7 @@ pub use warp::{
 };
 
 use crate::rig::Rig;
-use crate::stereo::{GreyImage, MatchingCost};
+use crate::stereo::{DisparityRange, GreyImage, MatchingCost};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -100,8 +100,9 @@ pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseli
 pub struct RegistrationSettings<'a> {
     pub mode: RegistrationMode,
     pub cost: MatchingCost<'a>,
-    /// Disparities searched, per column step: `[0, max_disp)`.
-    pub max_disp: usize,
+    /// Disparities searched, per column step (signed: an array calibrated to a plane sees
+    /// points beyond it at negative disparities).
+    pub range: DisparityRange,
 }
 
 /// Half-size of the window of the subpixel refinement of both registration modes (11×11,
@@ -173,7 +174,7 @@ pub fn register_views(
     settings: &RegistrationSettings<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
-    validate(images, geometry, settings.max_disp)?;
+    validate(images, geometry, settings.range)?;
     match settings.mode {
         RegistrationMode::Pairwise => pairwise_disparities(images, geometry, settings, progress),
         RegistrationMode::MultiBaseline => {
@@ -182,7 +183,7 @@ pub fn register_views(
     }
 }
 
-fn validate(images: &[GridImage], geometry: &ArrayGeometry, max_disp: usize) -> Result<()> {
+fn validate(images: &[GridImage], geometry: &ArrayGeometry, range: DisparityRange) -> Result<()> {
     let Some(first) = images.first() else {
         return Err(Error::mismatch("registration", "no views", "at least one"));
     };
@@ -213,12 +214,26 @@ fn validate(images: &[GridImage], geometry: &ArrayGeometry, max_disp: usize) -> 
             "finite and > 0",
         ));
     }
-    let longest = (max_disp as f64 * geometry.baseline_ratio.max(1.0)).ceil() as usize;
-    if max_disp < 2 || longest >= w.min(h) {
+    check_search_range(range, geometry, w, h)
+}
+
+/// Checks that `range` has at least two disparities and that its largest shift, along
+/// the longer baseline, stays inside views of `w × h`.
+pub fn check_search_range(
+    range: DisparityRange,
+    geometry: &ArrayGeometry,
+    w: usize,
+    h: usize,
+) -> Result<()> {
+    let longest = (range.magnitude() as f64 * geometry.baseline_ratio.max(1.0)).ceil() as usize;
+    if range.count() < 2 || longest >= w.min(h) {
         return Err(Error::mismatch(
-            "registration: search range",
-            format!("{max_disp} disparities ({longest} px along the longer baseline)"),
-            format!("at least 2, fitting a {w}x{h} image"),
+            "search range",
+            format!(
+                "{range}: {} disparities, up to {longest} px along the longer baseline",
+                range.count()
+            ),
+            format!("at least 2 disparities, each shift fitting the {w}x{h} images"),
         ));
     }
     Ok(())

@@ -65,7 +65,7 @@ fn along_row(
     let chain = MatchSettings {
         left_right: LeftRight::Check,
         subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
-        ..MatchSettings::for_cost(&settings.cost, settings.max_disp)
+        ..MatchSettings::for_cost(&settings.cost, settings.range)
     };
     if let Some(j) = find(images, view.row, view.col + 1) {
         let out = match_pair(&view.image, &images[j].image, &settings.cost, &chain)?;
@@ -103,10 +103,7 @@ fn along_column(
     let chain = MatchSettings {
         left_right: LeftRight::Check,
         subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
-        ..MatchSettings::for_cost(
-            &settings.cost,
-            (settings.max_disp as f64 * ratio).ceil() as usize,
-        )
+        ..MatchSettings::for_cost(&settings.cost, settings.range.scaled(ratio))
     };
     let to_columns = |d: Vec<f32>| d.into_iter().map(|v| (v as f64 / ratio) as f32).collect();
     if let Some(j) = find(images, view.row + 1, view.col) {

@@ -1,20 +1,26 @@
-//! The disparity search range from the captures themselves (`reconstruct --max-disp auto`),
-//! run before registration: the array is registered on images downsampled 2× or 4× over
-//! the widest range at which the outermost views still overlap, and the 98th percentile of
-//! those disparities, scaled back with a margin, becomes the full-resolution range.
+//! The disparity search range from the captures themselves (`reconstruct --disp-range
+//! auto`, the default), run before registration: the array is registered on images
+//! downsampled 2× or 4× over the widest range at which the outermost views still overlap
+//! (signed: a third of it below zero, for arrays calibrated to a plane), and the 2nd and
+//! 98th percentiles of those disparities, scaled back with a margin, become the
+//! full-resolution range. The range starts at 0 unless the coarse disparities reach below
+//! −1 coarse pixel, so an array rectified to infinity is searched from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
 use super::{register_views, ArrayGeometry, GridImage, RegistrationSettings};
-use crate::stereo::GreyImage;
+use crate::stereo::{DisparityRange, GreyImage};
 use crate::{Error, Result};
 use serde::Serialize;
 use std::time::Instant;
 
-/// Fraction of the coarse disparities the range must cover. A range wider than needed
-/// costs quality (spurious matches where few views overlap: tabletop r0c0 29.6 / 29.1 /
-/// 28.7 dB at 52 / 56 / 60 for a largest true disparity of 45.6), so coarse outliers must
-/// not set it: 0.99 chose 71 there, 0.98 chooses 59.
+/// Fraction of the coarse disparities the range must cover below its top (and above its
+/// bottom: `1 − COVERED_QUANTILE`). A range wider than needed costs quality (spurious
+/// matches where few views overlap: tabletop r0c0 29.6 / 29.1 / 28.7 dB at 52 / 56 / 60
+/// for a largest true disparity of 45.6), so coarse outliers must not set it: 0.99 chose
+/// 71 there, 0.98 chooses 59.
 const COVERED_QUANTILE: f64 = 0.98;
+/// Share of the coarse search range below zero.
+const NEGATIVE_SHARE: usize = 3;
 /// Multiplicative margin on the covered disparity.
 const MARGIN: f64 = 1.1;
 /// Largest coarse search range (disparities at the coarse scale).
@@ -23,14 +29,15 @@ const MAX_COARSE_DISPARITY: usize = 128;
 /// The chosen range and how it was found.
 #[derive(Debug, Clone, Serialize)]
 pub struct SearchRange {
-    /// Disparities searched at full resolution: `[0, max_disp)`.
-    pub max_disp: usize,
+    /// Disparities searched at full resolution.
+    pub range: DisparityRange,
     /// Downsampling factor of the coarse registration.
     pub factor: usize,
     /// Coarse range searched (coarse pixels).
-    pub coarse_max_disp: usize,
-    /// The covered quantile of the coarse disparities, in full-resolution pixels.
-    pub covered_disparity_px: f64,
+    pub coarse_range: DisparityRange,
+    /// The covered quantiles (low, high) of the coarse disparities, in full-resolution
+    /// pixels.
+    pub covered_disparity_px: [f64; 2],
     pub seconds: f64,
 }
 
@@ -93,19 +100,21 @@ pub fn estimate_search_range(
     };
     let coarse: Vec<GridImage> = images.iter().map(|v| downsample(v, factor)).collect();
     let coarse_w = w / factor;
-    let coarse_max_disp = (coarse_w / span).clamp(4, MAX_COARSE_DISPARITY);
+    let coarse_max = (coarse_w / span).clamp(4, MAX_COARSE_DISPARITY);
+    let coarse_range =
+        DisparityRange::new(-((coarse_max / NEGATIVE_SHARE) as i32), coarse_max as i32)?;
     if coarse_w < 16 || h / factor < 16 {
         return Err(Error::mismatch(
             "search range",
             format!("{w}x{h} px, too small to estimate a range"),
-            "a larger image, or a search range given (--max-disp)",
+            "a larger image, or a search range given (--disp-range MIN:MAX)",
         ));
     }
     let registration = register_views(
         &coarse,
         geometry,
         &RegistrationSettings {
-            max_disp: coarse_max_disp,
+            range: coarse_range,
             ..*settings
         },
         &|_, _| {},
@@ -120,18 +129,25 @@ pub fn estimate_search_range(
     if values.is_empty() {
         return Err(Error::unusable(
             "the coarse registration",
-            "it found no disparity; give the search range (--max-disp)",
+            "it found no disparity; give the search range (--disp-range MIN:MAX)",
         ));
     }
     values.sort_by(f32::total_cmp);
-    let covered = values[((values.len() - 1) as f64 * COVERED_QUANTILE) as usize] as f64;
-    let covered_px = covered.max(0.0) * factor as f64;
-    let max_disp = ((covered_px * MARGIN).ceil() as usize + 2 * factor).clamp(4, (w / span).max(4));
+    let quantile = |q: f64| values[((values.len() - 1) as f64 * q) as usize] as f64;
+    let (low, high) = (quantile(1.0 - COVERED_QUANTILE), quantile(COVERED_QUANTILE));
+    let f = factor as f64;
+    let widest = (w / span).max(4) as i32;
+    let max = ((high.max(0.0) * f * MARGIN).ceil() as i32 + 2 * factor as i32).clamp(4, widest);
+    let min = if low < -1.0 {
+        ((low * f * MARGIN).floor() as i32 - 2 * factor as i32).max(-widest)
+    } else {
+        0
+    };
     Ok(SearchRange {
-        max_disp,
+        range: DisparityRange::new(min, max.max(min + 2))?,
         factor,
-        coarse_max_disp,
-        covered_disparity_px: covered_px,
+        coarse_range,
+        covered_disparity_px: [low * f, high.max(0.0) * f],
         seconds: clock.elapsed().as_secs_f64(),
     })
 }

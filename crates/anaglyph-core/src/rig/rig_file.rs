@@ -130,6 +130,12 @@ pub struct RigFile {
     pub illuminant: Option<String>,
     #[serde(default)]
     pub reconstruction: ReconstructionSettings,
+    /// Distance (mm) of the plane the captures are registered to, e.g. the checkerboard
+    /// the array was calibrated on: that plane has zero disparity, nearer points positive
+    /// and farther ones negative (down to `−f·b_x / distance` at infinity). The simulator
+    /// renders captures so registered; none: an array rectified to infinity (d ≥ 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_plane_mm: Option<f64>,
     #[serde(rename = "camera")]
     pub cameras: Vec<CameraEntry>,
 }
@@ -249,6 +255,11 @@ impl RigFile {
                 self.focal_length_px,
                 "positive and finite",
             );
+        }
+        if let Some(plane) = self.calibration_plane_mm {
+            if !(plane.is_finite() && plane > 0.0) {
+                return range("calibration_plane_mm", plane, "positive and finite");
+            }
         }
         let lambda = self.reconstruction.lambda;
         if !(lambda.is_finite() && lambda >= 0.0) {
@@ -442,6 +453,7 @@ impl Rig {
             sensor_interpolation: Interpolation::CubicSpline,
             illuminant: Some(format!("{BUILTIN_PREFIX}cie_a")),
             reconstruction: ReconstructionSettings::default(),
+            calibration_plane_mm: None,
             cameras,
         }
     }

@@ -95,6 +95,9 @@ pub struct PinholeCamera {
     pub focal_px: f64,
     pub width: usize,
     pub height: usize,
+    /// The principal point's offset from the image centre, pixels (an array registered to
+    /// a plane shifts each camera's image so that the plane has zero disparity).
+    pub principal_offset_px: [f64; 2],
 }
 
 impl PinholeCamera {
@@ -112,6 +115,25 @@ impl PinholeCamera {
             focal_px,
             width: size.0,
             height: size.1,
+            principal_offset_px: [0.0; 2],
+        }
+    }
+
+    /// The camera of an array registered to a plane at `plane_mm` (see
+    /// [`crate::rig::RigFile::calibration_plane_mm`]): the image shifted so that a point of
+    /// the plane falls where the reference camera (0, 0) sees it, i.e. at zero disparity.
+    pub fn registered_to_plane(
+        self,
+        row: usize,
+        col: usize,
+        baseline_mm: (f64, f64),
+        plane_mm: f64,
+    ) -> Self {
+        let shift =
+            |steps: usize, baseline: f64| steps as f64 * self.focal_px * baseline / plane_mm;
+        PinholeCamera {
+            principal_offset_px: [shift(col, baseline_mm.0), shift(row, baseline_mm.1)],
+            ..self
         }
     }
 
@@ -119,8 +141,8 @@ impl PinholeCamera {
     /// principal point at the image centre.
     pub fn ray(&self, x: f64, y: f64) -> Ray {
         let local = Vec3::new(
-            x - 0.5 * self.width as f64,
-            y - 0.5 * self.height as f64,
+            x - 0.5 * self.width as f64 - self.principal_offset_px[0],
+            y - 0.5 * self.height as f64 - self.principal_offset_px[1],
             self.focal_px,
         );
         Ray {
@@ -141,8 +163,12 @@ impl PinholeCamera {
         );
         (local.z > 0.0).then(|| {
             (
-                self.focal_px * local.x / local.z + 0.5 * self.width as f64,
-                self.focal_px * local.y / local.z + 0.5 * self.height as f64,
+                self.focal_px * local.x / local.z
+                    + 0.5 * self.width as f64
+                    + self.principal_offset_px[0],
+                self.focal_px * local.y / local.z
+                    + 0.5 * self.height as f64
+                    + self.principal_offset_px[1],
                 local.z,
             )
         })
@@ -342,6 +368,35 @@ mod tests {
         let ray = reference.ray(x0, y0);
         let t = (point - ray.origin).length();
         assert!((ray.origin + ray.direction * t - point).length() < 1e-9);
+    }
+
+    #[test]
+    fn an_array_registered_to_a_plane_sees_it_at_zero_disparity() {
+        let (f, bx, by, plane) = (1800.0, 30.0, 50.0, 1500.0);
+        let camera = |row, col| {
+            PinholeCamera::on_grid(row, col, (bx, by), f, (640, 480)).registered_to_plane(
+                row,
+                col,
+                (bx, by),
+                plane,
+            )
+        };
+        let d_plane = f * bx / plane;
+        for z in [plane, 1000.0, 3000.0] {
+            let point = Vec3::new(40.0, 25.0, z);
+            let (x0, y0, _) = camera(0, 0).project(point).unwrap();
+            // Column-step disparity relative to the plane: 0 on it, > 0 nearer, < 0 beyond.
+            let d = f * bx / z - d_plane;
+            for (row, col) in [(0, 1), (1, 2), (2, 2)] {
+                let (x, y, _) = camera(row, col).project(point).unwrap();
+                assert!((x - (x0 - col as f64 * d)).abs() < 1e-9, "z {z}");
+                assert!((y - (y0 - row as f64 * d * by / bx)).abs() < 1e-9, "z {z}");
+                // The ray through the projection meets the point.
+                let ray = camera(row, col).ray(x, y);
+                let t = (point - ray.origin).length();
+                assert!((ray.origin + ray.direction * t - point).length() < 1e-9);
+            }
+        }
     }
 
     #[test]

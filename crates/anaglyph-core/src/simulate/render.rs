@@ -82,7 +82,8 @@ pub struct RenderedView {
     pub truth: Vec<f32>,
     /// Depth along the optical axis, mm (+inf where no surface).
     pub depth: Vec<f32>,
-    /// Disparity in pixels per column step (`f·b_x / depth`).
+    /// Disparity in pixels per column step (`f·b_x / depth`, less `f·b_x / plane` for an
+    /// array registered to a plane: the rig's `calibration_plane_mm`).
     pub disparity: Vec<f32>,
     pub exposure: f64,
     pub saturated: usize,
@@ -115,8 +116,14 @@ pub fn render_view(
         rig.file.baseline_mm.horizontal,
         rig.file.baseline_mm.vertical,
     );
-    let camera =
+    let mut camera =
         PinholeCamera::on_grid(cam.row, cam.col, baseline, rig.file.focal_length_px, (w, h));
+    // Disparity of the plane the captures are registered to (0: infinity).
+    let mut plane_disparity = 0.0;
+    if let Some(plane_mm) = rig.file.calibration_plane_mm {
+        camera = camera.registered_to_plane(cam.row, cam.col, baseline, plane_mm);
+        plane_disparity = rig.file.focal_length_px * baseline.0 / plane_mm;
+    }
     let label = format!("r{}c{}:", cam.row, cam.col);
     let tracer = Tracer {
         scene,
@@ -135,7 +142,7 @@ pub fn render_view(
     };
     let disparity: Vec<f32> = depth
         .iter()
-        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64) as f32)
+        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64 - plane_disparity) as f32)
         .collect();
     let exposed = tracer.expose(camera_index, &clean);
     Ok(RenderedView {

@@ -4,7 +4,8 @@
 //! intensities within one image, so it survives gain and offset changes between cameras,
 //! but not the intensity inversions of strongly different filters.
 
-use super::{CostVolume, GreyImage};
+use super::cost_volume::{matched_indices, right_column};
+use super::{CostVolume, DisparityRange, GreyImage};
 use rayon::prelude::*;
 
 /// Census window (7 × 9: 62 comparisons fit a u64), as in the baseline.
@@ -36,20 +37,26 @@ fn census_transform(image: &GreyImage) -> Vec<u64> {
 }
 
 /// Census cost volume of a rectified pair (left is the reference).
-pub fn census_cost_volume(left: &GreyImage, right: &GreyImage, max_disp: usize) -> CostVolume {
+pub fn census_cost_volume(
+    left: &GreyImage,
+    right: &GreyImage,
+    range: DisparityRange,
+) -> CostVolume {
     let (w, h) = (left.width, left.height);
     let bits_per_code = ((2 * HALF_WIDTH + 1) * (2 * HALF_HEIGHT + 1) - 1) as f32;
     let (l, r) = (census_transform(left), census_transform(right));
-    let mut volume = CostVolume::new(w, h, max_disp);
+    let mut volume = CostVolume::new(w, h, range);
+    let n = range.count();
     volume
         .data
-        .par_chunks_mut(w * max_disp)
+        .par_chunks_mut(w * n)
         .enumerate()
         .for_each(|(y, row)| {
             for x in 0..w {
-                for d in 0..max_disp.min(x + 1) {
-                    row[x * max_disp + d] =
-                        (l[y * w + x] ^ r[y * w + x - d]).count_ones() as f32 / bits_per_code;
+                for k in matched_indices(x, w, range) {
+                    let xr = right_column(x, k, range);
+                    row[x * n + k] =
+                        (l[y * w + x] ^ r[y * w + xr]).count_ones() as f32 / bits_per_code;
                 }
             }
         });

@@ -1,18 +1,21 @@
 //! The matching-cost volume shared by every cost and refinement stage: for each left pixel
-//! (x, y) and disparity d, the cost of matching it with right pixel (x − d, y); lower is
-//! better. Stored pixel-major (`(y·w + x)·D + d`), so one pixel's costs are contiguous for
-//! the per-pixel scans of SGM and the winner-take-all.
+//! (x, y) and each disparity d of a signed [`DisparityRange`], the cost of matching it with
+//! right pixel (x − d, y); lower is better. Stored pixel-major (`(y·w + x)·D + k` for
+//! d = min + k), so one pixel's costs are contiguous for the per-pixel scans of SGM and
+//! the winner-take-all.
 
+pub use crate::disparity::DisparityRange;
 pub use crate::image::GreyImage;
+use std::ops::Range;
 
-/// Costs for `width × height` pixels and `max_disp` disparities.
+/// Costs for `width × height` pixels over the disparities of `range`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostVolume {
     pub width: usize,
     pub height: usize,
-    pub max_disp: usize,
-    /// `(y·width + x)·max_disp + d`; pairs whose right pixel falls outside the image hold
-    /// [`CostVolume::INVALID`].
+    pub range: DisparityRange,
+    /// `(y·width + x)·count + k` for disparity `range.min + k`; pairs whose right pixel
+    /// falls outside the image hold [`CostVolume::INVALID`].
     pub data: Vec<f32>,
 }
 
@@ -21,18 +24,74 @@ impl CostVolume {
     /// of the normalised costs here, which lie in [0, 1]).
     pub const INVALID: f32 = 1.0;
 
-    pub fn new(width: usize, height: usize, max_disp: usize) -> Self {
+    pub fn new(width: usize, height: usize, range: DisparityRange) -> Self {
         CostVolume {
             width,
             height,
-            max_disp,
-            data: vec![Self::INVALID; width * height * max_disp],
+            range,
+            data: vec![Self::INVALID; width * height * range.count()],
         }
+    }
+
+    /// Disparities per pixel.
+    pub fn count(&self) -> usize {
+        self.range.count()
     }
 
     /// The costs of pixel (x, y) over all disparities.
     pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
-        let i = (y * self.width + x) * self.max_disp;
-        &self.data[i..i + self.max_disp]
+        let n = self.count();
+        let i = (y * self.width + x) * n;
+        &self.data[i..i + n]
+    }
+
+    /// The indices k whose right pixel `x − (min + k)` lies inside the image.
+    pub fn matched(&self, x: usize) -> Range<usize> {
+        matched_indices(x, self.width, self.range)
+    }
+
+    /// The index of a whole disparity `d` (None outside the range or not finite).
+    pub fn index_of(&self, d: f32) -> Option<usize> {
+        self.range
+            .contains(d)
+            .then(|| (d as i64 - self.range.min as i64) as usize)
+    }
+}
+
+/// The indices k of `range` whose right pixel `x − (min + k)` lies in `[0, width)`.
+pub fn matched_indices(x: usize, width: usize, range: DisparityRange) -> Range<usize> {
+    let first = x as i64 - range.min as i64 - width as i64 + 1;
+    let end = x as i64 - range.min as i64 + 1;
+    let clamp = |v: i64| v.clamp(0, range.count() as i64) as usize;
+    clamp(first)..clamp(end)
+}
+
+/// The right column matched by left column x at index k of `range`: `x − (min + k)`
+/// (k from [`matched_indices`]).
+#[inline(always)]
+pub fn right_column(x: usize, k: usize, range: DisparityRange) -> usize {
+    (x as i64 - range.min as i64 - k as i64) as usize
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn matched_indices_keep_the_right_pixel_inside() {
+        let width = 10;
+        for range in [DisparityRange::new(0, 4), DisparityRange::new(-6, 3)] {
+            let range = range.unwrap();
+            for x in 0..width {
+                let expected: Vec<usize> = (0..range.count())
+                    .filter(|&k| {
+                        let xr = x as i64 - range.min as i64 - k as i64;
+                        (0..width as i64).contains(&xr)
+                    })
+                    .collect();
+                let got: Vec<usize> = matched_indices(x, width, range).collect();
+                assert_eq!(got, expected, "x {x} range {range}");
+            }
+        }
     }
 }

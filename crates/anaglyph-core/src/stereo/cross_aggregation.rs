@@ -6,6 +6,8 @@
 //! vertically (alternating the order per iteration, as MC-CNN). In the chain
 //! `cost -> aggregate -> sgm -> refine`, it comes before and optionally after SGM.
 
+#[cfg(test)]
+use super::cost_volume::right_column;
 use super::{CostVolume, GreyImage};
 use rayon::prelude::*;
 
@@ -78,8 +80,13 @@ fn aggregate_1d(
     right_arms: &[[u16; 4]],
     horizontal: bool,
 ) {
-    let (w, h, dm) = (volume.width, volume.height, volume.max_disp);
+    let (w, h, dm, range) = (volume.width, volume.height, volume.count(), volume.range);
     let source = volume.data.clone();
+    // The right pixel of left pixel p at index d, if inside the image.
+    let right_pixel = move |p: usize, d: usize| {
+        let xr = (p % w) as i64 - range.min as i64 - d as i64;
+        (0..w as i64).contains(&xr).then(|| p - p % w + xr as usize)
+    };
     let (lines, length) = if horizontal { (h, w) } else { (w, h) };
     let index = move |line: usize, i: usize| {
         if horizontal {
@@ -98,19 +105,17 @@ fn aggregate_1d(
                 // Prefix sums of the valid costs along the line at this disparity.
                 for i in 0..length {
                     let p = index(line, i);
-                    let valid = p % w >= d;
+                    let valid = right_pixel(p, d).is_some();
                     let c = source[p * dm + d];
                     prefix[i + 1] = prefix[i] + if valid { c } else { 0.0 };
                     counts[i + 1] = counts[i] + u32::from(valid);
                 }
                 for i in 0..length {
                     let p = index(line, i);
-                    let x = p % w;
-                    if x < d {
+                    let Some(q) = right_pixel(p, d) else {
                         out[i * dm + d] = source[p * dm + d];
                         continue;
-                    }
-                    let q = p - d;
+                    };
                     let (a, b) = if horizontal { (0, 1) } else { (2, 3) };
                     let before = left_arms[p][a].min(right_arms[q][a]) as usize;
                     let after = left_arms[p][b].min(right_arms[q][b]) as usize;
@@ -142,13 +147,13 @@ pub(crate) fn reference_pass(
     right_arms: &[[u16; 4]],
     horizontal: bool,
 ) -> CostVolume {
-    let (w, h, dm) = (volume.width, volume.height, volume.max_disp);
+    let (w, h, dm) = (volume.width, volume.height, volume.count());
     let mut out = volume.clone();
     for y in 0..h {
         for x in 0..w {
             let p = y * w + x;
-            for d in 0..dm.min(x + 1) {
-                let q = p - d;
+            for d in volume.matched(x) {
+                let q = y * w + right_column(x, d, volume.range);
                 let (a, b) = if horizontal { (0, 1) } else { (2, 3) };
                 let before = left_arms[p][a].min(right_arms[q][a]) as i64;
                 let after = left_arms[p][b].min(right_arms[q][b]) as i64;
@@ -159,7 +164,10 @@ pub(crate) fn reference_pass(
                     } else {
                         (x as i64, y as i64 + k)
                     };
-                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 || (xx as usize) < d {
+                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
+                        continue;
+                    }
+                    if !volume.matched(xx as usize).contains(&d) {
                         continue;
                     }
                     sum += volume.data[(yy as usize * w + xx as usize) * dm + d] as f64;
@@ -175,13 +183,20 @@ pub(crate) fn reference_pass(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stereo::DisparityRange;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn aggregation_equals_the_plain_support_mean() {
+        for range in [DisparityRange::new(0, 6), DisparityRange::new(-4, 2)] {
+            aggregation_equals_the_plain_support_mean_over(range.unwrap());
+        }
+    }
+
+    fn aggregation_equals_the_plain_support_mean_over(range: DisparityRange) {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let (w, h, dm) = (23, 17, 6);
+        let (w, h, dm) = (23, 17, range.count());
         let image = |rng: &mut ChaCha8Rng| GreyImage {
             channels: 1,
             width: w,
@@ -192,10 +207,10 @@ mod tests {
                 .collect(),
         };
         let (left, right) = (image(&mut rng), image(&mut rng));
-        let mut volume = CostVolume::new(w, h, dm);
+        let mut volume = CostVolume::new(w, h, range);
         for y in 0..h {
             for x in 0..w {
-                for d in 0..dm.min(x + 1) {
+                for d in volume.matched(x) {
                     volume.data[(y * w + x) * dm + d] = rng.random();
                 }
             }

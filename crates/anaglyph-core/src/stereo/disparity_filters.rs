@@ -3,24 +3,29 @@
 //! side, mismatches by the median of the nearest consistent pixels in 16 directions), a
 //! 5×5 median filter and an intensity-gated bilateral filter. NaN marks invalid pixels.
 
-use super::{CostVolume, GreyImage, LEFT_RIGHT_TOLERANCE};
+use super::cost_volume::matched_indices;
+use super::{CostVolume, DisparityRange, GreyImage, LEFT_RIGHT_TOLERANCE};
 use rayon::prelude::*;
 
 /// The right view's winner-take-all disparities from the left volume
-/// (`d_R(x) = argmin_d C(x + d, d)`).
+/// (`d_R(x) = argmin_d C(x + d, d)` over the d whose left pixel is inside the image).
 pub fn right_disparity(volume: &CostVolume) -> Vec<f32> {
-    let (w, h, dm) = (volume.width, volume.height, volume.max_disp);
+    let (w, h, dm, range) = (volume.width, volume.height, volume.count(), volume.range);
     let mut out = vec![0f32; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (xr, value) in row.iter_mut().enumerate() {
+            // Left pixel x = xr + min + k lies inside the image for these k.
+            let first = -(xr as i64) - range.min as i64;
+            let clamp = |v: i64| v.clamp(0, dm as i64) as usize;
             let (mut best, mut best_cost) = (0, f32::INFINITY);
-            for d in 0..dm.min(w - xr) {
-                let c = volume.data[(y * w + xr + d) * dm + d];
+            for k in clamp(first)..clamp(first + w as i64) {
+                let x = (xr as i64 + range.min as i64 + k as i64) as usize;
+                let c = volume.data[(y * w + x) * dm + k];
                 if c < best_cost {
-                    (best, best_cost) = (d, c);
+                    (best, best_cost) = (k, c);
                 }
             }
-            *value = best as f32;
+            *value = range.at(best);
         }
     });
     out
@@ -38,18 +43,25 @@ pub enum Consistency {
 
 /// MC-CNN's classification: correct if `|d − d_R(x − d)| ≤ 1`, a mismatch if another
 /// disparity `d'` satisfies `|d' − d_R(x − d')| ≤ 1`, an occlusion otherwise.
-pub fn classify(left: &[f32], right: &[f32], width: usize, max_disp: usize) -> Vec<Consistency> {
+pub fn classify(
+    left: &[f32],
+    right: &[f32],
+    width: usize,
+    range: DisparityRange,
+) -> Vec<Consistency> {
     left.par_iter()
         .enumerate()
         .map(|(i, &d)| {
             let (x, row) = (i % width, i - i % width);
             let consistent = |d: f32| {
                 let xr = x as f32 - d.round();
-                xr >= 0.0 && (right[row + xr as usize] - d).abs() <= LEFT_RIGHT_TOLERANCE
+                xr >= 0.0
+                    && xr < width as f32
+                    && (right[row + xr as usize] - d).abs() <= LEFT_RIGHT_TOLERANCE
             };
             if d.is_finite() && consistent(d) {
                 Consistency::Correct
-            } else if (0..max_disp.min(x + 1)).any(|k| consistent(k as f32)) {
+            } else if matched_indices(x, width, range).any(|k| consistent(range.at(k))) {
                 Consistency::Mismatch
             } else {
                 Consistency::Occlusion
@@ -328,10 +340,18 @@ mod tests {
         // says 0): inconsistent, but d' = 0 would be consistent, so a mismatch. With right
         // disparities all 5, no left pixel below x = 5 can be consistent: occlusion.
         let right = vec![0.0; 6];
-        let classes = classify(&[0.0, 0.0, 0.0, 2.0, 0.0, 0.0], &right, 6, 4);
+        let range = DisparityRange::up_to(4).unwrap();
+        let classes = classify(&[0.0, 0.0, 0.0, 2.0, 0.0, 0.0], &right, 6, range);
         assert_eq!(classes[3], Consistency::Mismatch);
         assert_eq!(classes[0], Consistency::Correct);
-        let classes = classify(&[1.0; 6], &[5.0; 6], 6, 4);
+        let classes = classify(&[1.0; 6], &[5.0; 6], 6, range);
         assert_eq!(classes[2], Consistency::Occlusion);
+        // Negative disparities: right disparities all −2 confirm left pixels 0..4 at −2;
+        // pixel 5 at −2 would look at right pixel 7, outside, and no other disparity
+        // is consistent there: an occlusion.
+        let range = DisparityRange::new(-3, 1).unwrap();
+        let classes = classify(&[-2.0; 6], &[-2.0; 6], 6, range);
+        assert_eq!(classes[3], Consistency::Correct);
+        assert_eq!(classes[5], Consistency::Occlusion);
     }
 }

@@ -5,9 +5,10 @@
 //! accurate one runs its fully connected layers on every (pixel, disparity) pair. The
 //! result is an ordinary [`CostVolume`] in [0, 1] for the refinement chain.
 
+use super::cost_volume::{matched_indices, right_column};
 use super::network::{ConvLayer, MatchingNetwork, KERNEL};
 use super::winograd::winograd_convolve;
-use super::{CostVolume, GreyImage};
+use super::{CostVolume, DisparityRange, GreyImage};
 use rayon::prelude::*;
 
 /// Per-pixel feature vectors, `data[(y·width + x)·channels + k]`.
@@ -180,16 +181,16 @@ pub fn learned_cost_volume(
     network: &MatchingNetwork,
     left: &GreyImage,
     right: &GreyImage,
-    max_disp: usize,
+    range: DisparityRange,
 ) -> CostVolume {
     let (fl, fr) = rayon::join(
         || tower_features(network, left),
         || tower_features(network, right),
     );
     if network.is_accurate() {
-        accurate_costs(network, &fl, &fr, max_disp)
+        accurate_costs(network, &fl, &fr, range)
     } else {
-        cosine_costs(&fl, &fr, max_disp)
+        cosine_costs(&fl, &fr, range)
     }
 }
 
@@ -213,22 +214,22 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// `(1 − fl·fr)/2` over L2-normalised features.
-pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, max_disp: usize) -> CostVolume {
-    let (w, h, c) = (fl.width, fl.height, fl.channels);
-    let mut volume = CostVolume::new(w, h, max_disp);
+pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, range: DisparityRange) -> CostVolume {
+    let (w, h, c, n) = (fl.width, fl.height, fl.channels, range.count());
+    let mut volume = CostVolume::new(w, h, range);
     volume
         .data
-        .par_chunks_mut(w * max_disp)
+        .par_chunks_mut(w * n)
         .enumerate()
         .for_each(|(y, row)| {
             let (left_row, right_row) = (&fl.data[y * w * c..][..w * c], &fr.data[y * w * c..]);
             for x in 0..w {
                 let a = &left_row[x * c..][..c];
-                let costs = &mut row[x * max_disp..][..max_disp];
-                for (d, cost) in costs.iter_mut().enumerate().take(max_disp.min(x + 1)) {
-                    let b = &right_row[(x - d) * c..][..c];
+                let costs = &mut row[x * n..][..n];
+                for k in matched_indices(x, w, range) {
+                    let b = &right_row[right_column(x, k, range) * c..][..c];
                     let dot = dot(a, b);
-                    *cost = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
+                    costs[k] = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
                 }
             }
         });
@@ -242,77 +243,80 @@ fn accurate_costs(
     network: &MatchingNetwork,
     fl: &FeatureMap,
     fr: &FeatureMap,
-    max_disp: usize,
+    range: DisparityRange,
 ) -> CostVolume {
-    let (w, h, c) = (fl.width, fl.height, fl.channels);
+    let (w, h, c, n) = (fl.width, fl.height, fl.channels, range.count());
     let first = &network.dense[0];
     let units = first.outputs;
     let widest = network.dense.iter().map(|l| l.outputs).max().unwrap_or(1);
-    let mut volume = CostVolume::new(w, h, max_disp);
-    volume
-        .data
-        .par_chunks_mut(w * max_disp)
-        .enumerate()
-        .for_each_init(
-            || {
-                (
-                    vec![0f32; w * units],
-                    vec![0f32; w * units],
-                    vec![0f32; w * widest],
-                    vec![0f32; w * widest],
-                )
-            },
-            |(al, ar, hidden, next), (y, row)| {
-                matmul(
-                    al,
-                    &fl.data[y * w * c..][..w * c],
-                    &first.weight[..c * units],
-                    w,
-                    units,
-                    c,
-                );
-                matmul(
-                    ar,
-                    &fr.data[y * w * c..][..w * c],
-                    &first.weight[c * units..],
-                    w,
-                    units,
-                    c,
-                );
-                for d in 0..max_disp.min(w) {
-                    let m = w - d;
-                    for x in d..w {
-                        let out = &mut hidden[(x - d) * units..][..units];
-                        for (((o, a), b), bias) in out
-                            .iter_mut()
-                            .zip(&al[x * units..][..units])
-                            .zip(&ar[(x - d) * units..][..units])
-                            .zip(&first.bias)
-                        {
-                            *o = (a + b + bias).max(0.0);
-                        }
-                    }
-                    let mut width = units;
-                    for (j, layer) in network.dense.iter().enumerate().skip(1) {
-                        matmul(next, hidden, &layer.weight, m, layer.outputs, width);
-                        let last = j + 1 == network.dense.len();
-                        for pixel in next[..m * layer.outputs].chunks_exact_mut(layer.outputs) {
-                            for (v, b) in pixel.iter_mut().zip(&layer.bias) {
-                                *v += b;
-                                if !last {
-                                    *v = v.max(0.0);
-                                }
-                            }
-                        }
-                        std::mem::swap(hidden, next);
-                        width = layer.outputs;
-                    }
-                    for x in d..w {
-                        let logit = hidden[(x - d) * width];
-                        row[x * max_disp + d] = 1.0 / (1.0 + logit.exp());
+    let mut volume = CostVolume::new(w, h, range);
+    volume.data.par_chunks_mut(w * n).enumerate().for_each_init(
+        || {
+            (
+                vec![0f32; w * units],
+                vec![0f32; w * units],
+                vec![0f32; w * widest],
+                vec![0f32; w * widest],
+            )
+        },
+        |(al, ar, hidden, next), (y, row)| {
+            matmul(
+                al,
+                &fl.data[y * w * c..][..w * c],
+                &first.weight[..c * units],
+                w,
+                units,
+                c,
+            );
+            matmul(
+                ar,
+                &fr.data[y * w * c..][..w * c],
+                &first.weight[c * units..],
+                w,
+                units,
+                c,
+            );
+            for k in 0..n {
+                // Left columns whose right column x − d lies inside the image.
+                let d = range.min as i64 + k as i64;
+                let columns =
+                    (d.max(0) as usize).min(w)..((w as i64 + d).clamp(0, w as i64) as usize);
+                let m = columns.len();
+                if m == 0 {
+                    continue;
+                }
+                for (j, x) in columns.clone().enumerate() {
+                    let out = &mut hidden[j * units..][..units];
+                    for (((o, a), b), bias) in out
+                        .iter_mut()
+                        .zip(&al[x * units..][..units])
+                        .zip(&ar[right_column(x, k, range) * units..][..units])
+                        .zip(&first.bias)
+                    {
+                        *o = (a + b + bias).max(0.0);
                     }
                 }
-            },
-        );
+                let mut width = units;
+                for (j, layer) in network.dense.iter().enumerate().skip(1) {
+                    matmul(next, hidden, &layer.weight, m, layer.outputs, width);
+                    let last = j + 1 == network.dense.len();
+                    for pixel in next[..m * layer.outputs].chunks_exact_mut(layer.outputs) {
+                        for (v, b) in pixel.iter_mut().zip(&layer.bias) {
+                            *v += b;
+                            if !last {
+                                *v = v.max(0.0);
+                            }
+                        }
+                    }
+                    std::mem::swap(hidden, next);
+                    width = layer.outputs;
+                }
+                for (j, x) in columns.enumerate() {
+                    let logit = hidden[j * width];
+                    row[x * n + k] = 1.0 / (1.0 + logit.exp());
+                }
+            }
+        },
+    );
     volume
 }

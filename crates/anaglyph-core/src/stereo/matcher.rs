@@ -11,7 +11,7 @@ use super::{
     zncc_cost_volume, Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage,
     MatchingNetwork, SgmParameters,
 };
-use crate::disparity::{DisparityConvention, DisparityMap, PairAxis};
+use crate::disparity::{DisparityConvention, DisparityMap, DisparityRange, PairAxis};
 use crate::{Error, Result};
 use std::time::Instant;
 
@@ -53,7 +53,8 @@ pub enum LeftRight {
 /// Every stage's settings; `None`/`Off`/`false` switches a stage off.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MatchSettings {
-    pub max_disp: usize,
+    /// The disparities searched (signed: `x_right = x_left − d`).
+    pub range: DisparityRange,
     pub aggregation_before_sgm: Option<CrossAggregation>,
     pub sgm: Option<SgmParameters>,
     pub aggregation_after_sgm: Option<CrossAggregation>,
@@ -68,9 +69,9 @@ pub struct MatchSettings {
 
 impl MatchSettings {
     /// MC-CNN fast's published KITTI 2015 chain (no cross-based aggregation).
-    pub fn mc_cnn_fast(max_disp: usize) -> Self {
+    pub fn mc_cnn_fast(range: DisparityRange) -> Self {
         MatchSettings {
-            max_disp,
+            range,
             aggregation_before_sgm: None,
             sgm: Some(SgmParameters::MC_CNN_FAST_KITTI),
             aggregation_after_sgm: None,
@@ -90,19 +91,19 @@ impl MatchSettings {
     /// chain with P2 at 2.64 (published 21.15 on our cost scale) and no bilateral filter,
     /// found by `examples/stereo_tuning.rs` (coordinate descent on the validation scenes:
     /// bad-2 26.6 % with the published values, 18.1 % with these).
-    pub fn tuned_fast(max_disp: usize) -> Self {
+    pub fn tuned_fast(range: DisparityRange) -> Self {
         MatchSettings {
             sgm: Some(SgmParameters {
                 p2: 2.64375,
                 ..SgmParameters::MC_CNN_FAST_KITTI
             }),
             bilateral: None,
-            ..Self::mc_cnn_fast(max_disp)
+            ..Self::mc_cnn_fast(range)
         }
     }
 
     /// MC-CNN accurate's published KITTI 2015 chain.
-    pub fn mc_cnn_accurate(max_disp: usize) -> Self {
+    pub fn mc_cnn_accurate(range: DisparityRange) -> Self {
         let cbca = |iterations| CrossAggregation {
             intensity: 0.03,
             distance: 5,
@@ -117,14 +118,14 @@ impl MatchSettings {
                 threshold: 5.0,
                 radius: 6,
             }),
-            ..Self::mc_cnn_fast(max_disp)
+            ..Self::mc_cnn_fast(range)
         }
     }
 
     /// Winner-take-all on the raw costs: every refinement stage off.
-    pub fn raw(max_disp: usize) -> Self {
+    pub fn raw(range: DisparityRange) -> Self {
         MatchSettings {
-            max_disp,
+            range,
             aggregation_before_sgm: None,
             sgm: None,
             aggregation_after_sgm: None,
@@ -138,19 +139,19 @@ impl MatchSettings {
 
     /// The default chain for a cost: tuned for the fast network and the classical costs
     /// (the same chain for all, so that costs compare), published for the accurate one.
-    pub fn for_cost(cost: &MatchingCost<'_>, max_disp: usize) -> Self {
+    pub fn for_cost(cost: &MatchingCost<'_>, range: DisparityRange) -> Self {
         match cost {
-            MatchingCost::Learned(n) if n.is_accurate() => Self::mc_cnn_accurate(max_disp),
-            _ => Self::tuned_fast(max_disp),
+            MatchingCost::Learned(n) if n.is_accurate() => Self::mc_cnn_accurate(range),
+            _ => Self::tuned_fast(range),
         }
     }
 
     /// MC-CNN's published chain for a cost (accurate for the accurate network, fast for
     /// everything else).
-    pub fn published_for_cost(cost: &MatchingCost<'_>, max_disp: usize) -> Self {
+    pub fn published_for_cost(cost: &MatchingCost<'_>, range: DisparityRange) -> Self {
         match cost {
-            MatchingCost::Learned(n) if n.is_accurate() => Self::mc_cnn_accurate(max_disp),
-            _ => Self::mc_cnn_fast(max_disp),
+            MatchingCost::Learned(n) if n.is_accurate() => Self::mc_cnn_accurate(range),
+            _ => Self::mc_cnn_fast(range),
         }
     }
 }
@@ -189,7 +190,7 @@ pub fn unit_range(image: &GreyImage) -> GreyImage {
     }
 }
 
-fn validate(left: &GreyImage, right: &GreyImage, max_disp: usize) -> Result<()> {
+fn validate(left: &GreyImage, right: &GreyImage, range: DisparityRange) -> Result<()> {
     if left.width != right.width || left.height != right.height {
         return Err(Error::Shape {
             op: "stereo matching: the right image".into(),
@@ -219,14 +220,7 @@ fn validate(left: &GreyImage, right: &GreyImage, max_disp: usize) -> Result<()> 
             "at least 2×1",
         ));
     }
-    if max_disp < 2 || max_disp > left.width {
-        return Err(Error::out_of_range(
-            "max disparity",
-            max_disp as f64,
-            format!("2 to the image width {}", left.width),
-        ));
-    }
-    Ok(())
+    range.check_width(left.width, "the stereo pair")
 }
 
 /// Runs the chain on a rectified pair (left is the reference).
@@ -236,8 +230,8 @@ pub fn match_pair(
     cost: &MatchingCost<'_>,
     settings: &MatchSettings,
 ) -> Result<MatchOutput> {
-    validate(left, right, settings.max_disp)?;
-    let (w, h, dm) = (left.width, left.height, settings.max_disp);
+    validate(left, right, settings.range)?;
+    let (w, h, range) = (left.width, left.height, settings.range);
     let mut timings = Vec::new();
     let mut clock = Instant::now();
     let mut lap = |name: &'static str, timings: &mut Vec<(&'static str, f64)>| {
@@ -250,17 +244,17 @@ pub fn match_pair(
         None => volume,
     };
     let mut volume = match cost {
-        MatchingCost::Learned(network) => learned_cost_volume(network, left, right, dm),
-        MatchingCost::Census => census_cost_volume(&left_unit, &right_unit, dm),
-        MatchingCost::Zncc => zncc_cost_volume(&left_unit, &right_unit, dm),
+        MatchingCost::Learned(network) => learned_cost_volume(network, left, right, range),
+        MatchingCost::Census => census_cost_volume(&left_unit, &right_unit, range),
+        MatchingCost::Zncc => zncc_cost_volume(&left_unit, &right_unit, range),
         MatchingCost::MutualInformation { iterations } => {
-            let census = census_cost_volume(&left_unit, &right_unit, dm);
+            let census = census_cost_volume(&left_unit, &right_unit, range);
             let mut disparity = winner_take_all(&sgm_or_raw(census));
             let mut volume =
-                mutual_information_cost_volume(&left_unit, &right_unit, dm, &disparity);
+                mutual_information_cost_volume(&left_unit, &right_unit, range, &disparity);
             for _ in 1..*iterations {
                 disparity = winner_take_all(&sgm_or_raw(volume));
-                volume = mutual_information_cost_volume(&left_unit, &right_unit, dm, &disparity);
+                volume = mutual_information_cost_volume(&left_unit, &right_unit, range, &disparity);
             }
             volume
         }
@@ -282,7 +276,7 @@ pub fn match_pair(
     let mut disparity = winner_take_all(&volume);
     lap("winner-take-all", &mut timings);
     if settings.left_right != LeftRight::Off {
-        let classes = classify(&disparity, &right_disparity(&volume), w, dm);
+        let classes = classify(&disparity, &right_disparity(&volume), w, range);
         disparity = if settings.left_right == LeftRight::CheckAndFill {
             fill_inconsistent(&disparity, &classes, w, h)
         } else {

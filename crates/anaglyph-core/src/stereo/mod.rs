@@ -21,7 +21,7 @@ mod winograd;
 mod zncc;
 
 pub use census::census_cost_volume;
-pub use cost_volume::{CostVolume, GreyImage};
+pub use cost_volume::{CostVolume, DisparityRange, GreyImage};
 pub use cross_aggregation::{cross_based_aggregation, CrossAggregation};
 pub use disparity_filters::{
     bilateral_filter, classify, fill_inconsistent, median_filter, right_disparity, Bilateral,

@@ -5,7 +5,8 @@
 //! intensities, inversions included, which is what different filters produce. The
 //! matcher iterates: census disparities, then MI costs from them, SGM, and again.
 
-use super::{CostVolume, GreyImage};
+use super::cost_volume::{matched_indices, right_column};
+use super::{CostVolume, DisparityRange, GreyImage};
 use rayon::prelude::*;
 
 /// Intensity bins (images are scaled to [0, 1] first).
@@ -108,23 +109,24 @@ pub fn mutual_information_table(
 pub fn mutual_information_cost_volume(
     left: &GreyImage,
     right: &GreyImage,
-    max_disp: usize,
+    range: DisparityRange,
     disparity: &[f32],
 ) -> CostVolume {
     let table = mutual_information_table(left, right, disparity);
     let (w, h) = (left.width, left.height);
     let left_bins: Vec<usize> = left.data.iter().map(|&v| bin(v)).collect();
     let right_bins: Vec<usize> = right.data.iter().map(|&v| bin(v)).collect();
-    let mut volume = CostVolume::new(w, h, max_disp);
+    let mut volume = CostVolume::new(w, h, range);
+    let n = range.count();
     volume
         .data
-        .par_chunks_mut(w * max_disp)
+        .par_chunks_mut(w * n)
         .enumerate()
         .for_each(|(y, row)| {
             for x in 0..w {
                 let t = &table[left_bins[y * w + x] * BINS..][..BINS];
-                for d in 0..max_disp.min(x + 1) {
-                    row[x * max_disp + d] = t[right_bins[y * w + x - d]];
+                for k in matched_indices(x, w, range) {
+                    row[x * n + k] = t[right_bins[y * w + right_column(x, k, range)]];
                 }
             }
         });

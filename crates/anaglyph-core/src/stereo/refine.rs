@@ -3,23 +3,24 @@
 //! refinement (as MC-CNN: a parabola through the costs at d − 1, d, d + 1) and a windowed
 //! equiangular refinement on the raw costs, which avoids the parabola's pixel locking.
 
-use super::CostVolume;
+use super::{right_disparity, CostVolume};
 use rayon::prelude::*;
 
 /// Largest left–right disagreement (pixels) of a consistent match.
 pub const LEFT_RIGHT_TOLERANCE: f32 = 1.0;
 
-/// The disparity of least cost at every pixel.
+/// The disparity of least cost at every pixel (a whole disparity of the volume's range).
 pub fn winner_take_all(volume: &CostVolume) -> Vec<f32> {
-    (0..volume.width * volume.height)
-        .map(|i| {
-            let costs = &volume.data[i * volume.max_disp..(i + 1) * volume.max_disp];
+    volume
+        .data
+        .chunks_exact(volume.count())
+        .map(|costs| {
             let (best, _) =
                 costs.iter().enumerate().fold(
                     (0, f32::INFINITY),
                     |b, (d, &c)| if c < b.1 { (d, c) } else { b },
                 );
-            best as f32
+            volume.range.at(best)
         })
         .collect()
 }
@@ -27,31 +28,20 @@ pub fn winner_take_all(volume: &CostVolume) -> Vec<f32> {
 /// Invalidates (NaN) left disparities that the right view's own winner-take-all, computed
 /// from the same volume (`d_R(x) = argmin_d C(x + d, d)`), does not confirm.
 pub fn left_right_check(volume: &CostVolume, left: &[f32]) -> Vec<f32> {
-    let (w, dm) = (volume.width, volume.max_disp);
+    let w = volume.width;
+    let right = right_disparity(volume);
     let mut out = left.to_vec();
-    for y in 0..volume.height {
-        let right: Vec<f32> = (0..w)
-            .map(|xr| {
-                let (best, _) = (0..dm.min(w - xr)).fold((0, f32::INFINITY), |b, d| {
-                    let c = volume.pixel(xr + d, y)[d];
-                    if c < b.1 {
-                        (d, c)
-                    } else {
-                        b
-                    }
-                });
-                best as f32
-            })
-            .collect();
-        for x in 0..w {
-            let d = left[y * w + x];
-            if !d.is_finite() {
-                continue;
-            }
-            let xr = x as i64 - d.round() as i64;
-            if xr < 0 || (right[xr as usize] - d).abs() > LEFT_RIGHT_TOLERANCE {
-                out[y * w + x] = f32::NAN;
-            }
+    for (i, value) in out.iter_mut().enumerate() {
+        let (x, row) = (i % w, i - i % w);
+        let d = left[i];
+        if !d.is_finite() {
+            continue;
+        }
+        let xr = x as i64 - d.round() as i64;
+        if !(0..w as i64).contains(&xr)
+            || (right[row + xr as usize] - d).abs() > LEFT_RIGHT_TOLERANCE
+        {
+            *value = f32::NAN;
         }
     }
     out
@@ -63,14 +53,13 @@ pub fn subpixel_disparity(volume: &CostVolume, disparity: &[f32]) -> Vec<f32> {
         .iter()
         .enumerate()
         .map(|(i, &d)| {
-            if !d.is_finite() {
+            let Some(k) = volume.index_of(d) else {
+                return d;
+            };
+            if k == 0 || k + 1 >= volume.count() {
                 return d;
             }
-            let k = d as usize;
-            if k == 0 || k + 1 >= volume.max_disp {
-                return d;
-            }
-            let c = &volume.data[i * volume.max_disp..(i + 1) * volume.max_disp];
+            let c = &volume.data[i * volume.count()..(i + 1) * volume.count()];
             let denominator = c[k + 1] + c[k - 1] - 2.0 * c[k];
             if denominator <= 0.0 {
                 return d;
@@ -92,15 +81,14 @@ pub fn subpixel_disparity(volume: &CostVolume, disparity: &[f32]) -> Vec<f32> {
 /// this refinement cuts the median error of multi-baseline maps from 0.14 to 0.07 px.
 /// Pixels whose window has no minimum at k keep the integer value; NaN stays NaN.
 pub fn windowed_subpixel(raw: &CostVolume, disparity: &[f32], radius: usize) -> Vec<f32> {
-    let (w, h, dm) = (raw.width, raw.height, raw.max_disp);
+    let (w, h, dm) = (raw.width, raw.height, raw.count());
     (0..w * h)
         .into_par_iter()
         .map(|i| {
             let d = disparity[i];
-            if !d.is_finite() || d < 1.0 || d as usize + 1 >= dm {
+            let Some(k) = raw.index_of(d).filter(|&k| k >= 1 && k + 1 < dm) else {
                 return d;
-            }
-            let k = d as usize;
+            };
             let (x, y) = (i % w, i / w);
             let (mut minus, mut centre, mut plus) = (0f32, 0f32, 0f32);
             for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
@@ -127,6 +115,7 @@ pub fn windowed_subpixel(raw: &CostVolume, disparity: &[f32], radius: usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stereo::DisparityRange;
 
     #[test]
     fn windowed_refinement_recovers_the_vertex_of_v_shaped_costs() {
@@ -143,7 +132,7 @@ mod tests {
         let volume = CostVolume {
             width: w,
             height: h,
-            max_disp: dm,
+            range: DisparityRange::up_to(dm).unwrap(),
             data,
         };
         let refined = windowed_subpixel(&volume, &disparity, 2);
@@ -163,11 +152,19 @@ mod tests {
         let v = CostVolume {
             width: 1,
             height: 1,
-            max_disp: 5,
+            range: DisparityRange::up_to(5).unwrap(),
             data,
         };
         let d = winner_take_all(&v);
         assert_eq!(d, vec![2.0]);
         assert!((subpixel_disparity(&v, &d)[0] - 2.3).abs() < 1e-5);
+        // The same costs over −3..2 hold the vertex at 2.3 − 3.
+        let shifted = CostVolume {
+            range: DisparityRange::new(-3, 2).unwrap(),
+            ..v
+        };
+        let d = winner_take_all(&shifted);
+        assert_eq!(d, vec![-1.0]);
+        assert!((subpixel_disparity(&shifted, &d)[0] + 0.7).abs() < 1e-5);
     }
 }

@@ -4,6 +4,8 @@
 //! and the result is the mean of the paths. P1 and P2 are divided by Q1 where one image
 //! gradient along the path exceeds D, by Q2 where both do, and P1 by V on vertical paths.
 
+#[cfg(test)]
+use super::DisparityRange;
 use super::{CostVolume, GreyImage};
 use rayon::prelude::*;
 
@@ -82,12 +84,15 @@ fn penalties(
     y: usize,
     px: usize,
     py: usize,
-    d: usize,
+    d: i64,
 ) -> (f32, f32) {
     let gl = (left.at(x, y) - left.at(px, py)).abs() >= params.gradient_threshold;
-    let gr = x >= d
-        && px >= d
-        && (right.at(x - d, y) - right.at(px - d, py)).abs() >= params.gradient_threshold;
+    let inside = |v: i64| (0..left.width as i64).contains(&v);
+    let (xr, pxr) = (x as i64 - d, px as i64 - d);
+    let gr = inside(xr)
+        && inside(pxr)
+        && (right.at(xr as usize, y) - right.at(pxr as usize, py)).abs()
+            >= params.gradient_threshold;
     let divisor = match (gl, gr) {
         (false, false) => 1.0,
         (true, true) => params.q2,
@@ -120,7 +125,8 @@ fn divisors(params: &SgmParameters) -> [f32; 3] {
 }
 
 /// One path step at pixel p: `current[d] = C(p,d) + min(...) − min_k previous[k]`, with the
-/// penalties chosen per disparity from the left edge flag and the right one at p − d.
+/// penalties chosen per disparity from the left edge flag and the right one at p − d
+/// (`d = min_disp + index`).
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn step(
@@ -129,17 +135,22 @@ fn step(
     current: &mut [f32],
     left_edge: bool,
     right_edges: &[bool],
-    x: usize,
-    px: usize,
+    (x, px): (usize, usize),
+    min_disp: i64,
     p1: f32,
     p2: f32,
     divisor: &[f32; 3],
 ) {
     let dmax = costs.len();
+    let w = right_edges.len() as i64;
     let min_prev = previous.iter().cloned().fold(f32::INFINITY, f32::min);
     for d in 0..dmax {
         // The right gradient exists only where both right pixels are inside the image.
-        let right_edge = x >= d && px >= d && right_edges[x - d];
+        let (xr, pxr) = (
+            x as i64 - min_disp - d as i64,
+            px as i64 - min_disp - d as i64,
+        );
+        let right_edge = xr >= 0 && xr < w && pxr >= 0 && pxr < w && right_edges[xr as usize];
         let k = usize::from(left_edge) + usize::from(right_edge);
         let (p1, p2) = (p1 / divisor[k], p2 / divisor[k]);
         let mut best = previous[d].min(min_prev + p2);
@@ -162,7 +173,8 @@ pub(crate) fn aggregate(
     params: &SgmParameters,
     directions: &[(i64, i64)],
 ) -> CostVolume {
-    let (w, h, dm) = (volume.width, volume.height, volume.max_disp);
+    let (w, h, dm) = (volume.width, volume.height, volume.count());
+    let min_disp = volume.range.min as i64;
     let mut sum = crate::io::zeroed_large(w * h * dm);
     let divisor = divisors(params);
     for &(dx, dy) in directions {
@@ -194,8 +206,8 @@ pub(crate) fn aggregate(
                                 current,
                                 left_edges[y * w + x],
                                 right_row,
-                                x,
-                                px,
+                                (x, px),
+                                min_disp,
                                 p1,
                                 p2,
                                 &divisor,
@@ -243,8 +255,8 @@ pub(crate) fn aggregate(
                                     current,
                                     left_edges[y * w + x],
                                     right_row,
-                                    x,
-                                    px,
+                                    (x, px),
+                                    min_disp,
                                     p1,
                                     p2,
                                     &divisor,
@@ -264,7 +276,7 @@ pub(crate) fn aggregate(
     CostVolume {
         width: w,
         height: h,
-        max_disp: dm,
+        range: volume.range,
         data: sum,
     }
 }
@@ -282,12 +294,18 @@ mod tests {
 
     #[test]
     fn each_path_matches_a_plain_dynamic_programme() {
-        let (w, h, dm) = (9, 7, 5);
+        for range in [DisparityRange::new(0, 5), DisparityRange::new(-3, 2)] {
+            each_path_matches_a_plain_dynamic_programme_over(range.unwrap());
+        }
+    }
+
+    fn each_path_matches_a_plain_dynamic_programme_over(range: DisparityRange) {
+        let (w, h, dm) = (9, 7, range.count());
         let mut seed = 3;
         let volume = CostVolume {
             width: w,
             height: h,
-            max_disp: dm,
+            range,
             data: (0..w * h * dm).map(|_| uniform(&mut seed)).collect(),
         };
         let image = GreyImage {
@@ -327,7 +345,7 @@ mod tests {
                 p: &SgmParameters,
                 memo: &mut Vec<f32>,
             ) -> f32 {
-                let (w, h, dm) = (v.width as i64, v.height as i64, v.max_disp);
+                let (w, h, dm) = (v.width as i64, v.height as i64, v.count());
                 let i = ((y * w + x) as usize) * dm + d;
                 if !memo[i].is_nan() {
                     return memo[i];
@@ -349,7 +367,7 @@ mod tests {
                         y as usize,
                         px as usize,
                         py as usize,
-                        d,
+                        v.range.min as i64 + d as i64,
                     );
                     let m = prev.iter().cloned().fold(f32::INFINITY, f32::min);
                     let mut best = prev[d].min(m + p2);

@@ -13,7 +13,7 @@ use crate::register::compact_features::{
 #[cfg(target_arch = "x86_64")]
 use crate::register::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
 use crate::register::ArrayGeometry;
-use crate::stereo::CostVolume;
+use crate::stereo::{CostVolume, DisparityRange};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -54,14 +54,14 @@ impl<'a> PointCosts<'a> {
         (self.features[0].width, self.features[0].height)
     }
 
-    /// View `reference`'s cost volume over `[0, max_disp)`.
-    pub fn volume(&self, reference: usize, max_disp: usize) -> CostVolume {
+    /// View `reference`'s cost volume over `range`.
+    pub fn volume(&self, reference: usize, range: DisparityRange) -> CostVolume {
         multi_view_cost_volume(
             self.features,
             self.positions,
             reference,
             self.geometry,
-            max_disp,
+            range,
         )
     }
 
@@ -140,10 +140,10 @@ pub fn multi_view_cost_volume(
     positions: &[(usize, usize)],
     reference: usize,
     geometry: &ArrayGeometry,
-    max_disp: usize,
+    range: DisparityRange,
 ) -> CostVolume {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    cost_volume_with(kernel, features, positions, reference, geometry, max_disp)
+    cost_volume_with(kernel, features, positions, reference, geometry, range)
 }
 
 /// [`multi_view_cost_volume`] with the given build of the dot products.
@@ -159,23 +159,24 @@ fn cost_volume_with(
     positions: &[(usize, usize)],
     reference: usize,
     geometry: &ArrayGeometry,
-    max_disp: usize,
+    range: DisparityRange,
 ) -> CostVolume {
     let fr = &features[reference];
+    let disparities = range.count();
     let (w, c) = (fr.width, fr.channels);
     let others = others_of(positions, reference, geometry);
     let members: Vec<Vec<usize>> = others
         .iter()
         .map(|(_, _, halves)| (0..HALVES).filter(|&k| halves[k]).collect())
         .collect();
-    let mut volume = CostVolume::new(w, fr.height, max_disp);
-    if w == 0 || max_disp == 0 {
+    let mut volume = CostVolume::new(w, fr.height, range);
+    if w == 0 || disparities == 0 {
         return volume;
     }
     let rows_per_task = rows_per_task(w * c * std::mem::size_of::<u16>());
     volume
         .data
-        .par_chunks_mut(rows_per_task * w * max_disp)
+        .par_chunks_mut(rows_per_task * w * disparities)
         .enumerate()
         .for_each_init(
             // Per thread: running sums and counts of one (row, disparity) per half-array,
@@ -184,7 +185,7 @@ fn cost_volume_with(
             || (vec![0f32; HALVES * w], vec![0u16; HALVES * w], Vec::new()),
             |(sums, counts, widened), (block, rows)| {
                 let first = block * rows_per_task;
-                let count = rows.len() / (w * max_disp);
+                let count = rows.len() / (w * disparities);
                 if kernel != DotKernel::Avx512Bf16 {
                     widened.clear();
                     widened.extend(
@@ -193,8 +194,9 @@ fn cost_volume_with(
                             .map(|&v| widen(v)),
                     );
                 }
-                for d in 0..max_disp {
-                    for (i, row) in rows.chunks_exact_mut(w * max_disp).enumerate() {
+                for k in 0..disparities {
+                    let d = range.at(k) as f64;
+                    for (i, row) in rows.chunks_exact_mut(w * disparities).enumerate() {
                         sums.fill(0.0);
                         counts.fill(0);
                         let job = RowJob {
@@ -220,7 +222,7 @@ fn cost_volume_with(
                             },
                             _ => accumulate_widened(&job, &members, d, sums, counts, widened_row),
                         }
-                        for (x, cost) in row.iter_mut().skip(d).step_by(max_disp).enumerate() {
+                        for (x, cost) in row.iter_mut().skip(k).step_by(disparities).enumerate() {
                             let mut best = CostVolume::INVALID;
                             for k in 0..HALVES {
                                 let j = k * w + x;
@@ -271,7 +273,7 @@ struct RowJob<'a> {
 unsafe fn accumulate_avx2(
     job: &RowJob<'_>,
     members: &[Vec<usize>],
-    d: usize,
+    d: f64,
     sums: &mut [f32],
     counts: &mut [u16],
     widened_row: &[f32],
@@ -289,7 +291,7 @@ unsafe fn accumulate_avx2(
 fn accumulate_avx512_bf16(
     job: &RowJob<'_>,
     members: &[Vec<usize>],
-    d: usize,
+    d: f64,
     sums: &mut [f32],
     counts: &mut [u16],
 ) {
@@ -361,7 +363,7 @@ fn accumulate_avx512_bf16(
 fn accumulate_widened(
     job: &RowJob<'_>,
     members: &[Vec<usize>],
-    d: usize,
+    d: f64,
     sums: &mut [f32],
     counts: &mut [u16],
     widened_row: &[f32],
@@ -379,7 +381,7 @@ fn accumulate_widened(
 fn accumulate(
     job: &RowJob<'_>,
     members: &[Vec<usize>],
-    d: usize,
+    d: f64,
     sums: &mut [f32],
     counts: &mut [u16],
     similarity: impl Fn(usize, &[u16]) -> f32,
@@ -450,21 +452,21 @@ struct Segment<'a> {
 fn for_each_view_at(
     job: &RowJob<'_>,
     members: &[Vec<usize>],
-    d: usize,
+    d: f64,
     mut visit: impl FnMut(Segment<'_>),
 ) {
     let fr = job.reference;
     let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
     for (&(v, (sx, sy), _), members) in job.others.iter().zip(members) {
         let fv = &job.features[v];
-        let ys = y as f64 + sy * d as f64;
+        let ys = y as f64 + sy * d;
         if ys < 0.0 || ys > (h - 1) as f64 {
             continue;
         }
         let y0 = ys.floor() as usize;
         let fy = (ys - y0 as f64) as f32;
         let two_rows = fy as f64 > WHOLE_ROW && y0 + 1 < h;
-        let offset = (sx * d as f64).round() as isize;
+        let offset = (sx * d).round() as isize;
         let x_lo = (-offset).max(0) as usize;
         let x_hi = (w as isize - offset.max(0)).max(0) as usize;
         if x_lo >= x_hi {
@@ -628,10 +630,7 @@ fn half_step_row(
             continue;
         }
         for (slot, offset) in costs.iter_mut().zip(HALF_STEPS) {
-            let at = d as f64 + offset;
-            if at >= 0.0 {
-                *slot = cost_at(job, neighbours, x, at, product);
-            }
+            *slot = cost_at(job, neighbours, x, d as f64 + offset, product);
         }
     }
 }
@@ -678,15 +677,14 @@ pub(super) fn half_step_subpixel(
     disparity: &[f32],
     radius: usize,
 ) -> Vec<f32> {
-    let (w, h, dm) = (raw.width, raw.height, raw.max_disp);
+    let (w, h, dm) = (raw.width, raw.height, raw.count());
     (0..w * h)
         .into_par_iter()
         .map(|i| {
             let d = disparity[i];
-            if !d.is_finite() || d < 1.0 || d as usize + 1 >= dm {
+            let Some(k) = raw.index_of(d).filter(|&k| k >= 1 && k + 1 < dm) else {
                 return d;
-            }
-            let k = d as usize;
+            };
             let (x, y) = (i % w, i / w);
             let mut c = [0f32; 5];
             for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
@@ -696,8 +694,8 @@ pub(super) fn half_step_subpixel(
                     if !((dq - d).abs() <= 1.0) {
                         continue;
                     }
-                    // q's half steps sit at dq − 1.5 … dq + 1.5: k − ½ is slot k − dq + 1.
-                    let slot = (k as isize - dq as isize + 1) as usize;
+                    // q's half steps sit at dq − 1.5 … dq + 1.5: d − ½ is slot d − dq + 1.
+                    let slot = ((d - dq) as isize + 1) as usize;
                     let whole = &raw.data[q * dm + k - 1..][..3];
                     let values = [
                         whole[0],
@@ -770,12 +768,14 @@ mod tests {
                 })
             })
             .collect();
-        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, 6);
+        // A signed range: the volume's index 0 is disparity −2.
+        let range = DisparityRange::new(-2, 6).unwrap();
+        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, range);
         let wta = winner_take_all(&volume);
         let (x, y) = (w / 2, h / 2);
         assert_eq!(wta[y * w + x], d_true as f32);
         // bf16 storage: the cosine of identical unit vectors is 1 to about 1e-3.
-        assert!(volume.pixel(x, y)[d_true] < 2e-3);
+        assert!(volume.pixel(x, y)[d_true + 2] < 2e-3);
     }
 
     /// Smooth features; the right view sees them shifted by a fractional disparity, which
@@ -815,7 +815,8 @@ mod tests {
         };
         let features = vec![view(0.0), view(d_true)];
         let positions = [(0, 0), (0, 1)];
-        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, 8);
+        let range = DisparityRange::up_to(8).unwrap();
+        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, range);
         let whole = winner_take_all(&volume);
         let neighbours = neighbour_products(DotKernel::Portable, &features);
         let half = half_step_costs(&features, &neighbours, &positions, 0, &geometry, &whole);
@@ -841,7 +842,8 @@ mod tests {
     /// 64-channel features over a 2×4 array with fractional row shifts.
     #[test]
     fn every_dot_product_build_gives_the_same_costs() {
-        let (w, h, c, dm) = (40usize, 12usize, 64usize, 6usize);
+        let (w, h, c) = (40usize, 12usize, 64usize);
+        let range = DisparityRange::new(-3, 3).unwrap();
         let geometry = ArrayGeometry {
             rows: 2,
             cols: 4,
@@ -869,7 +871,7 @@ mod tests {
                 })
             })
             .collect();
-        let disparity: Vec<f32> = (0..w * h).map(|i| 1.5 + (i % 3) as f32).collect();
+        let disparity: Vec<f32> = (0..w * h).map(|i| -1.5 + (i % 3) as f32).collect();
         let kernels = DotKernel::available(c);
         assert_eq!(kernels.last(), Some(&DotKernel::Portable));
         let reference = 5; // r1c1: views on every side
@@ -879,7 +881,7 @@ mod tests {
             &positions,
             reference,
             &geometry,
-            dm,
+            range,
         );
         let portable_half = half_step_costs_with(
             DotKernel::Portable,
@@ -891,7 +893,8 @@ mod tests {
             &disparity,
         );
         for &kernel in &kernels {
-            let volume = cost_volume_with(kernel, &features, &positions, reference, &geometry, dm);
+            let volume =
+                cost_volume_with(kernel, &features, &positions, reference, &geometry, range);
             let worst = volume
                 .data
                 .iter()

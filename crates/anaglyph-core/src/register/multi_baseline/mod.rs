@@ -51,8 +51,8 @@ use super::{
     Registration, RegistrationSettings, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
-    median_filter, semi_global_matching, tower_features, unit_range, winner_take_all, FeatureMap,
-    GreyImage, MatchSettings, MatchingCost, MatchingNetwork,
+    median_filter, semi_global_matching, tower_features, unit_range, winner_take_all,
+    DisparityRange, FeatureMap, GreyImage, MatchSettings, MatchingCost, MatchingNetwork,
 };
 use crate::{Error, Result};
 use cost::{half_step_subpixel, PointCosts};
@@ -83,7 +83,7 @@ pub fn multi_baseline_disparities(
         &smoothed,
         &matched.ambiguities,
         &costs,
-        settings.max_disp,
+        settings.range,
     );
     timings.push((
         "cross-check, fill, median, planes".to_string(),
@@ -129,7 +129,7 @@ fn match_views(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> MatchedViews {
     let (w, h) = (images[0].image.width, images[0].image.height);
-    let chain = MatchSettings::for_cost(&settings.cost, settings.max_disp);
+    let chain = MatchSettings::for_cost(&settings.cost, settings.range);
     let flat = GreyImage {
         channels: 1,
         width: w,
@@ -143,7 +143,7 @@ fn match_views(
     };
     for (i, view) in images.iter().enumerate() {
         let clock = Instant::now();
-        let volume = costs.volume(i, settings.max_disp);
+        let volume = costs.volume(i, settings.range);
         cost_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         matched.ambiguities.push(Ambiguity::of_volume(&volume));
@@ -188,7 +188,7 @@ fn planes_by_vote(
     smoothed: &[Vec<f32>],
     ambiguities: &[Ambiguity],
     costs: &PointCosts<'_>,
-    max_disp: usize,
+    range: DisparityRange,
 ) -> Vec<(Vec<f32>, usize)> {
     let regions: Vec<Vec<RegionPlane>> = smoothed
         .iter()
@@ -197,13 +197,7 @@ fn planes_by_vote(
         .collect();
     let on_planes = |i: usize, regions: &[RegionPlane]| {
         let mut planar = smoothed[i].clone();
-        let moved = apply_region_planes(
-            &mut planar,
-            &ambiguities[i],
-            max_disp,
-            regions,
-            &costs.at(i),
-        );
+        let moved = apply_region_planes(&mut planar, &ambiguities[i], range, regions, &costs.at(i));
         (planar, moved)
     };
     let on_own_planes: Vec<(Vec<f32>, usize)> = regions
