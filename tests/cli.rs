@@ -30,6 +30,20 @@ fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// `eval` of the reconstruction folder `recon` against the simulation `dir/sim`: its mean
+/// PSNR (dB), from the JSON report.
+fn eval_psnr(dir: &Path, recon: &str) -> f64 {
+    let json = format!("{recon}.json");
+    let o = anaglyph(
+        &["eval", "--truth", "sim", "--recon", recon, "--json", &json],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join(&json)).unwrap()).unwrap();
+    report["mean_psnr"].as_f64().unwrap()
+}
+
 /// A failed run: non-zero exit, an "error:" line, no panic.
 fn assert_clean_failure(o: &Output, needle: &str) {
     assert!(!o.status.success(), "should fail: {}", stdout(o));

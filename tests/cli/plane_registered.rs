@@ -2,7 +2,7 @@
 //! plane have negative disparities. `match --disp-range` and `reconstruct`'s estimated
 //! signed range find them; a range that cannot be searched is refused before any work.
 
-use super::{anaglyph, assert_clean_failure, stderr, stdout};
+use super::{anaglyph, assert_clean_failure, eval_psnr, stderr, stdout};
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use std::path::Path;
@@ -112,18 +112,7 @@ fn an_array_registered_to_a_plane_is_matched_and_reconstructed_over_signed_range
         d,
     );
     assert!(o.status.success(), "{}", stderr(&o));
-    let psnr = |recon: &str| {
-        let json = format!("{recon}.json");
-        let o = anaglyph(
-            &["eval", "--truth", "sim", "--recon", recon, "--json", &json],
-            d,
-        );
-        assert!(o.status.success(), "{}", stderr(&o));
-        let report: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(d.join(&json)).unwrap()).unwrap();
-        report["mean_psnr"].as_f64().unwrap()
-    };
-    let (estimated, oracle) = (psnr("rec"), psnr("oracle"));
+    let (estimated, oracle) = (eval_psnr(d, "rec"), eval_psnr(d, "oracle"));
     eprintln!("reconstruct r0c0: {estimated:.2} dB estimated, {oracle:.2} dB true disparities");
     // Measured: 35.59 and 35.75 dB.
     assert!(estimated > oracle - 1.0, "{estimated} {oracle}");

@@ -2,7 +2,7 @@
 //! dark frame, reconstructed with the rig's `black_level` or `dark`, against the same
 //! simulation without them.
 
-use super::{anaglyph, stderr};
+use super::{anaglyph, eval_psnr, stderr};
 use anaglyph_core::io::{read_linear_image, write_png16};
 use anaglyph_core::rig::RigFile;
 use std::path::Path;
@@ -24,15 +24,7 @@ fn psnr_of(dir: &Path, rig: &str, out: &str) -> f64 {
         dir,
     );
     assert!(o.status.success(), "{}", stderr(&o));
-    let json = format!("{out}.json");
-    let o = anaglyph(
-        &["eval", "--truth", "sim", "--recon", out, "--json", &json],
-        dir,
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join(&json)).unwrap()).unwrap();
-    report["mean_psnr"].as_f64().unwrap()
+    eval_psnr(dir, out)
 }
 
 /// The simulation's captures and white boards with `dark(x, y)` added, written under
