@@ -651,7 +651,7 @@ pub struct ReconstructArgs {
     /// Rig file (TOML) naming each camera's filter, sensor, capture and white board.
     #[arg(long)]
     pub rig: PathBuf,
-    /// Output folder (views/, disparity/, preview/, probes/, manifest.json), written
+    /// Output folder (views/, disparity/, preview/, probes/, registered/, manifest.json), written
     /// whole at the end: a killed run leaves the previous folder as it was.
     #[arg(long)]
     pub out: PathBuf,
@@ -672,6 +672,11 @@ pub struct ReconstructArgs {
     /// Views to reconstruct: `all` or a list like r0c0,r1c2.
     #[arg(long, default_value = "all", value_parser = parse_views)]
     pub views: ViewList,
+    /// What each view gets: `cube` (reflectance, views/), `registered` (every camera's
+    /// capture warped into the view, registered/: band names = cameras, NaN where a
+    /// camera does not see the point) or `both`.
+    #[arg(long, value_enum, default_value_t = OutputChoice::Cube)]
+    pub output: OutputChoice,
     /// Scene illuminant (CSV, builtin:<name>, or `none` for white boards only) folded into
     /// C instead of the rig's; needed with exposure metadata when there is no white board.
     #[arg(long)]
@@ -788,6 +793,14 @@ pub struct TuningArgs {
     /// of the view's median residual; 0: equal weights [default: 1.5].
     #[arg(long, value_parser = parse_non_negative)]
     pub refine_confidence: Option<f64>,
+}
+
+/// `reconstruct --output`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum OutputChoice {
+    Cube,
+    Registered,
+    Both,
 }
 
 /// `reconstruct --preset`.

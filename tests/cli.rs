@@ -13,6 +13,8 @@ mod bad_input;
 mod plane_registered;
 #[path = "cli/real_sensor.rs"]
 mod real_sensor;
+#[path = "cli/registered_stack.rs"]
+mod registered_stack;
 
 fn anaglyph(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_anaglyph"))

@@ -8,6 +8,7 @@ use anaglyph_core::io::write_disparity_preview;
 use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
+    Products,
 };
 use anaglyph_core::register::{
     ArrayGeometry, RegistrationMode, RegistrationSettings, DEFAULT_REGISTRATION,
@@ -163,6 +164,7 @@ pub fn run_presets(
             (3 * width / 4, 2 * height / 3),
         ];
         let options = OutputOptions {
+            products: Products::Cubes,
             probes,
             truth: Some(sim_dir.clone()),
             parameters: serde_json::json!({

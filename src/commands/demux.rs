@@ -83,6 +83,7 @@ fn write_cube(args: &DemuxArgs, shape: &[usize], data: Vec<f32>) -> anyhow::Resu
         wavelengths: args
             .wavelengths
             .map(|(start, step)| (0..bands).map(|b| start + step * b as f64).collect()),
+        band_names: None,
     };
     write_envi(&args.out, &cube, "anaglyph demux spectra")?;
     Ok(())

@@ -5,14 +5,14 @@
 use super::match_pair::{load_network, matching_cost};
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
 use crate::cli::{
-    MatchingImageChoice, PresetChoice, ReconstructArgs, RegistrationChoice, SearchRangeArg,
-    TuningArgs, ViewList, WarpKernelChoice,
+    MatchingImageChoice, OutputChoice, PresetChoice, ReconstructArgs, RegistrationChoice,
+    SearchRangeArg, TuningArgs, ViewList, WarpKernelChoice,
 };
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
-    Preset, Stage,
+    Preset, Products, Stage,
 };
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
@@ -83,6 +83,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         args.calibration.as_deref(),
     )?;
     let options = OutputOptions {
+        products: products(args.output),
         probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
         truth: args.truth.clone(),
         parameters: manifest_parameters(&args, &rig, &settings),
@@ -159,6 +160,15 @@ fn load_rig(args: &ReconstructArgs) -> anyhow::Result<Rig> {
 }
 
 /// The preset's settings with every option the user gave applied over them.
+/// The products `--output` asks for.
+fn products(choice: OutputChoice) -> Products {
+    match choice {
+        OutputChoice::Cube => Products::Cubes,
+        OutputChoice::Registered => Products::Registered,
+        OutputChoice::Both => Products::Both,
+    }
+}
+
 fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> PipelineSettings<'a> {
     let preset = match args.preset {
         PresetChoice::Default => Preset::Default,
@@ -175,6 +185,7 @@ fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> Pipe
         settings.registration.range = range;
         settings.automatic_search_range = false;
     }
+    settings.keep_registered = products(args.output).registered();
     settings.white_reflectance = args.white_reflectance;
     settings.saturation_level = args.saturation;
     settings.demux.solver = tuning.solver.into();
@@ -262,6 +273,7 @@ fn manifest_parameters(
         "calibration": path(&args.calibration),
         "illuminant": args.illuminant,
         "preset": format!("{:?}", args.preset).to_lowercase(),
+        "output": products(args.output),
         "registration": if settings.given_disparities.is_some() {
             "true disparities".to_string()
         } else {

@@ -20,6 +20,8 @@ pub struct EnviCube {
     pub image: Image<f32>,
     /// Band centres in nm, when known.
     pub wavelengths: Option<Vec<f64>>,
+    /// Band names (None: "W nm" from the wavelengths, when known).
+    pub band_names: Option<Vec<String>>,
 }
 
 impl EnviCube {
@@ -79,15 +81,34 @@ pub fn write_envi(path: &Path, cube: &EnviCube, description: &str) -> Result<()>
         cube.image.height,
         cube.image.channels
     );
+    if let Some(names) = &cube.band_names {
+        if names.len() != cube.image.channels {
+            return Err(Error::Shape {
+                op: "write_envi band names".into(),
+                got: vec![names.len()],
+                expected: vec![cube.image.channels],
+            });
+        }
+    }
+    let names = cube.band_names.clone().or_else(|| {
+        let w = cube.wavelengths.as_ref()?;
+        Some(w.iter().map(|v| format!("{v} nm")).collect())
+    });
     if let Some(w) = &cube.wavelengths {
-        let list =
-            |f: &dyn Fn(f64) -> String| w.iter().map(|&v| f(v)).collect::<Vec<_>>().join(", ");
+        let list = w
+            .iter()
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
         header.push_str("wavelength units = Nanometers\n");
-        header.push_str(&format!("wavelength = {{{}}}\n", list(&|v| format!("{v}"))));
-        header.push_str(&format!(
-            "band names = {{{}}}\n",
-            list(&|v| format!("{v} nm"))
-        ));
+        header.push_str(&format!("wavelength = {{{list}}}\n"));
+    }
+    if let Some(names) = names {
+        let clean: Vec<String> = names
+            .iter()
+            .map(|n| n.replace([',', '{', '}'], " "))
+            .collect();
+        header.push_str(&format!("band names = {{{}}}\n", clean.join(", ")));
     }
     write_atomically(&data_path(path), |w| {
         for chunk in cube.image.data.chunks(1 << 16) {
@@ -154,6 +175,7 @@ struct EnviHeader {
     interleave: Interleave,
     big_endian: bool,
     wavelengths: Option<Vec<f64>>,
+    band_names: Option<Vec<String>>,
 }
 
 /// How an ENVI file orders its values.
@@ -271,6 +293,7 @@ impl EnviHeader {
                 }
             },
             wavelengths: wavelengths_of(path, fields, bands)?,
+            band_names: band_names_of(fields, bands),
         })
     }
 
@@ -326,6 +349,15 @@ fn interleave_of(path: &Path, fields: &HashMap<String, String>) -> Result<Interl
 }
 
 /// The `wavelength` list in nm (micrometres converted), one per band; None when absent.
+/// The `band names` list when it names every band (a list of another length is ignored:
+/// names are labels, not data).
+fn band_names_of(fields: &HashMap<String, String>, bands: usize) -> Option<Vec<String>> {
+    let list = fields.get("band names")?;
+    let inner = list.trim().trim_start_matches('{').trim_end_matches('}');
+    let names: Vec<String> = inner.split(',').map(|s| s.trim().to_string()).collect();
+    (names.len() == bands).then_some(names)
+}
+
 fn wavelengths_of(
     path: &Path,
     fields: &HashMap<String, String>,
@@ -443,6 +475,7 @@ pub fn read_envi(path: &Path) -> Result<EnviCube> {
             data,
         },
         wavelengths: header.wavelengths,
+        band_names: header.band_names,
     })
 }
 
@@ -457,6 +490,7 @@ mod tests {
         let cube = EnviCube {
             image: Image::new(3, 2, 4, (0..24).map(|v| v as f32 * 0.25).collect()).unwrap(),
             wavelengths: Some(vec![450.0, 458.0, 466.0, 474.0]),
+            band_names: None,
         };
         write_envi(&path, &cube, "test").unwrap();
         let header = std::fs::read_to_string(&path).unwrap();
@@ -468,7 +502,30 @@ mod tests {
                 .len(),
             96
         );
-        assert_eq!(read_envi(&path).unwrap(), cube);
+        let back = read_envi(&path).unwrap();
+        assert_eq!(
+            (&back.image, &back.wavelengths),
+            (&cube.image, &cube.wavelengths)
+        );
+        assert_eq!(back.band_names.unwrap()[1], "458 nm");
+        // Named bands without wavelengths (a registered stack of cameras).
+        let named = EnviCube {
+            wavelengths: None,
+            band_names: Some(
+                ["r0c0:R", "r0c0:G", "r0c1", "r1c0"]
+                    .map(String::from)
+                    .to_vec(),
+            ),
+            ..cube
+        };
+        write_envi(&path, &named, "test").unwrap();
+        let header = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            header.contains("band names = {r0c0:R, r0c0:G, r0c1, r1c0}"),
+            "{header}"
+        );
+        assert!(!header.contains("wavelength"));
+        assert_eq!(read_envi(&path).unwrap(), named);
     }
 
     #[test]

@@ -29,6 +29,7 @@ mod output;
 mod preview;
 mod probe_plot;
 mod rectification;
+mod registered_stack;
 mod registration;
 mod settings;
 mod summary;
@@ -40,7 +41,7 @@ pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
     UNEVEN_WHITE_WARNING,
 };
-pub use output::{write_light_field, OutputOptions};
+pub use output::{write_light_field, OutputOptions, Products};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
 pub use settings::{
@@ -100,6 +101,10 @@ pub struct ReconstructedView {
     /// (repetitive) region ([`crate::register::resolve_ambiguous_planes`]; None: given
     /// disparities, or a registration mode without that step).
     pub moved_to_planes: Option<usize>,
+    /// With [`PipelineSettings::keep_registered`]: every camera's white-normalised capture
+    /// warped into this view, `height × width × Σ channels` in the order of
+    /// [`LightField::channel_labels`], NaN where that camera does not see the point.
+    pub registered: Option<Vec<f32>>,
 }
 
 /// The multispectral light field of an array.
@@ -110,6 +115,9 @@ pub struct LightField {
     /// Band centres, nm.
     pub bands: Vec<f64>,
     pub views: Vec<ReconstructedView>,
+    /// The camera channel of each row of C, e.g. `r0c1:R` (the bands of a registered
+    /// stack).
+    pub channel_labels: Vec<String>,
     pub calibration: Vec<CameraCalibration>,
     /// How the array was rectified (None: the captures were already rectified).
     pub rectification: Option<Rectification>,
@@ -169,6 +177,7 @@ pub fn reconstruct(
         height: captures.height,
         bands: rig.reconstruction_shape()?.wavelengths(),
         views,
+        channel_labels: calibrated.sensing.row_labels.clone(),
         calibration: calibrated.calibration,
         rectification: rectified.map(|r| r.plan),
         search_range: registered.search_range,

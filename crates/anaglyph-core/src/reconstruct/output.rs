@@ -8,6 +8,9 @@
 //! OUT/preview/r{row}c{col}_pseudo.png    through the camera's RGB curves (the paper)
 //! OUT/preview/r{row}c{col}_srgb.png      CIE 1931 under D65
 //! OUT/probes/r{row}c{col}.svg            spectra at the --probe pixels (with truth if known)
+//! OUT/registered/r{row}c{col}.hdr + .img every camera warped into the view (with
+//!                                        --output registered or both; NaN: unseen)
+//! OUT/registered/r{row}c{col}_seen.png   how many cameras see each pixel (white: all)
 //! OUT/manifest.json                      inputs, parameters, calibration, rectification,
 //!                                        visibility, per-stage timings, warnings, the
 //!                                        run id and every file with its size and CRC-32
@@ -17,6 +20,7 @@
 //! it is one run's complete output or absent; [`OutputOptions::check`] is what a command
 //! calls before its work to find bad probes or a missing truth first.
 
+use super::registered_stack::write_registered_stack;
 use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
 use crate::image::Image;
 use crate::io::{
@@ -25,12 +29,37 @@ use crate::io::{
 };
 use crate::rig::Rig;
 use crate::{Error, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+
+/// Which per-view products a run writes besides the disparity maps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Products {
+    /// Reflectance cubes and their previews.
+    #[default]
+    Cubes,
+    /// Registered stacks: every camera's capture warped into the view.
+    Registered,
+    Both,
+}
+
+impl Products {
+    pub fn cubes(self) -> bool {
+        self != Products::Registered
+    }
+
+    pub fn registered(self) -> bool {
+        self != Products::Cubes
+    }
+}
 
 /// What to write besides the fixed layout.
 #[derive(Debug, Clone, Default)]
 pub struct OutputOptions {
+    /// Cubes, registered stacks or both (registered stacks need
+    /// [`super::PipelineSettings::keep_registered`]).
+    pub products: Products,
     /// Pixels (x, y) whose spectra are plotted.
     pub probes: Vec<(usize, usize)>,
     /// A simulator output folder whose `truth/` is drawn beside the probes.
@@ -79,6 +108,13 @@ impl OutputOptions {
         bands: usize,
         views: &[(usize, usize)],
     ) -> Result<()> {
+        if !self.products.cubes() && !self.probes.is_empty() {
+            return Err(Error::mismatch(
+                "probe",
+                "probes with registered stacks only".to_string(),
+                "cube output (probes plot reflectance spectra)".to_string(),
+            ));
+        }
         for &(x, y) in &self.probes {
             if x >= width || y >= height {
                 return Err(Error::mismatch(
@@ -118,11 +154,16 @@ pub fn write_light_field(
     let views: Vec<(usize, usize)> = field.views.iter().map(|v| (v.row, v.col)).collect();
     options.check(w, h, field.bands.len(), &views)?;
     let dir = folder.path();
-    for sub in ["views", "disparity", "preview"] {
+    let cubes = options.products.cubes();
+    let subfolders = [
+        ("views", cubes),
+        ("disparity", true),
+        ("preview", cubes),
+        ("probes", !options.probes.is_empty()),
+        ("registered", options.products.registered()),
+    ];
+    for (sub, _) in subfolders.iter().filter(|(_, wanted)| *wanted) {
         create_dir(&dir.join(sub))?;
-    }
-    if !options.probes.is_empty() {
-        create_dir(&dir.join("probes"))?;
     }
     let clock = std::time::Instant::now();
     // One colour scale for every view's disparity preview, from 0 or the farthest
@@ -144,8 +185,19 @@ pub fn write_light_field(
                 name: name.clone(),
                 available: "the rig's cameras".into(),
             })?;
-        write_cube(dir, &name, field, view)?;
         write_disparity(dir, &name, field, view, span)?;
+        if options.products.registered() {
+            let stack = view.registered.as_deref().ok_or(Error::StageDependency {
+                stage: "registered-stack output",
+                needs: "the warped captures",
+                why: "the pipeline ran without keep_registered",
+            })?;
+            write_registered_stack(dir, &name, rig, field, stack)?;
+        }
+        if !cubes {
+            continue;
+        }
+        write_cube(dir, &name, field, view)?;
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
         pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
@@ -171,6 +223,7 @@ fn write_cube(dir: &Path, name: &str, field: &LightField, view: &ReconstructedVi
                 data: view.reflectance.clone(),
             },
             wavelengths: Some(field.bands.clone()),
+            band_names: None,
         },
         &format!("anaglyph reconstructed reflectance, view {name}"),
     )?;

@@ -95,6 +95,10 @@ pub struct PipelineSettings<'a> {
     pub solve: SolveSettings,
     /// Views to reconstruct as (row, col); None: every view.
     pub views: Option<Vec<(usize, usize)>>,
+    /// Keep each view's registered stack: every camera's normalised capture warped into
+    /// the view, NaN where the camera does not see the point
+    /// ([`super::ReconstructedView::registered`]).
+    pub keep_registered: bool,
 }
 
 impl<'a> PipelineSettings<'a> {
@@ -124,6 +128,7 @@ impl<'a> PipelineSettings<'a> {
             demux: DemuxOptions::default(),
             solve: preset.solve(),
             views: None,
+            keep_registered: false,
         }
     }
 

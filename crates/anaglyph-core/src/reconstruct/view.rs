@@ -96,6 +96,7 @@ impl<'a> ViewPass<'a> {
             self.settings.warp_kernel,
         )?;
         seconds[0] += start.elapsed().as_secs_f64();
+        let registered = self.settings.keep_registered.then(|| measurements.clone());
         let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
         self.plan.run(&mut solve, &mut seconds[1..])?;
         let cam = &self.rig.cameras[v];
@@ -132,6 +133,7 @@ impl<'a> ViewPass<'a> {
             visibility,
             solve: solve.report,
             moved_to_planes: self.registered.moved_to_planes.as_ref().map(|m| m[v]),
+            registered,
         })
     }
 }

@@ -9,7 +9,7 @@ mod sensing;
 
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
-    resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,
+    curve_file, resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,
     BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE, PAPER_RIG_FILTERS,
 };
 pub use sensing::{

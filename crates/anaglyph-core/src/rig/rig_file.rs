@@ -181,16 +181,20 @@ pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
     }
     match reference.strip_prefix(BUILTIN_PREFIX) {
         Some(name) => builtin::any(name),
-        None => {
-            let path = Path::new(reference);
-            let path = if path.is_absolute() {
-                path.to_path_buf()
-            } else {
-                base.join(path)
-            };
-            ResponseCurve::load_csv(&path)
-        }
+        None => ResponseCurve::load_csv(&base.join(reference)),
     }
+}
+
+/// The CSV file a curve reference names (relative to `base`), None for `builtin:` and
+/// `gaussian:` references.
+pub fn curve_file(reference: &str, base: &Path) -> Option<PathBuf> {
+    if reference.starts_with(BUILTIN_PREFIX)
+        || reference.starts_with(crate::filters::GAUSSIAN_PREFIX)
+    {
+        return None;
+    }
+    // An absolute reference replaces `base`.
+    Some(base.join(reference))
 }
 
 impl RigFile {
@@ -378,15 +382,8 @@ impl Rig {
             if let Some(light) = &illuminant {
                 light.check_covers(lo, hi)?;
             }
-            let resolve_path = |p: &Option<PathBuf>| {
-                p.as_ref().map(|p| {
-                    if p.is_absolute() {
-                        p.clone()
-                    } else {
-                        base_dir.join(p)
-                    }
-                })
-            };
+            // An absolute path replaces `base_dir`.
+            let resolve_path = |p: &Option<PathBuf>| p.as_ref().map(|p| base_dir.join(p));
             cameras.push(Camera {
                 row: e.row,
                 col: e.col,
@@ -419,6 +416,15 @@ impl Rig {
     /// Total number of camera channels (rows of C).
     pub fn channel_count(&self) -> usize {
         self.cameras.iter().map(|c| c.sensor.channel_count()).sum()
+    }
+
+    /// The rows of C (and channels of a registered stack) of camera `index`.
+    pub fn channel_rows(&self, index: usize) -> std::ops::Range<usize> {
+        let start: usize = self.cameras[..index]
+            .iter()
+            .map(|c| c.sensor.channel_count())
+            .sum();
+        start..start + self.cameras[index].sensor.channel_count()
     }
 
     /// The paper's 2×4 rig (30 mm × 50 mm baselines, a Canon 5D Mark II sensor under CIE A,

@@ -50,7 +50,7 @@ pub struct EffectiveResponses {
     pub weights: Vec<f64>,
     /// `rows[r][t]`: response of channel r at `grid.wavelength(t)`.
     pub rows: Vec<Vec<f64>>,
-    /// "r{row}c{col}:{channel}" per row.
+    /// "r{row}c{col}:{channel}" per row ("r{row}c{col}" for a monochrome camera).
     pub labels: Vec<String>,
     /// Camera index (in rig order) of each row.
     pub camera_of_row: Vec<usize>,
@@ -114,7 +114,10 @@ impl EffectiveResponses {
                         .map(|((s, f), l)| (s * f * l).max(0.0))
                         .collect(),
                 );
-                labels.push(format!("{label}:{}", sensor.channel_names()[k]));
+                labels.push(match sensor.channel_count() {
+                    1 => label.to_string(),
+                    _ => format!("{label}:{}", sensor.channel_names()[k]),
+                });
                 camera_of_row.push(m);
             }
         }

@@ -28,7 +28,7 @@ use crate::io::{
     PfmImage,
 };
 use crate::rectify::CameraModel;
-use crate::rig::{Rig, RigFile};
+use crate::rig::{curve_file, Rig, RigFile};
 use crate::scene::SceneFile;
 use crate::{Error, Result};
 use serde::Serialize;
@@ -141,6 +141,7 @@ fn write_view(
             data: view.truth.clone(),
         },
         wavelengths: Some(simulation.bands.clone()),
+        band_names: None,
     };
     write_envi(
         &dir.join(&record.truth),
@@ -189,12 +190,12 @@ fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
             }
         }
     }
-    let absolutise = |r: &str| {
-        if r.starts_with(crate::rig::BUILTIN_PREFIX) || Path::new(r).is_absolute() {
-            r.to_string()
-        } else {
-            rig.base_dir.join(r).display().to_string()
-        }
+    let absolutise = |r: &str| match curve_file(r, &rig.base_dir) {
+        Some(file) => std::path::absolute(&file)
+            .unwrap_or(file)
+            .display()
+            .to_string(),
+        None => r.to_string(),
     };
     rig_file.sensor = absolutise(&rig_file.sensor);
     rig_file.illuminant = rig_file.illuminant.as_deref().map(absolutise);

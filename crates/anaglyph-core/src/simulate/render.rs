@@ -124,15 +124,12 @@ pub fn render_view(
         camera = camera.registered_to_plane(cam.row, cam.col, baseline, plane_mm);
         plane_disparity = rig.file.focal_length_px * baseline.0 / plane_mm;
     }
-    let label = format!("r{}c{}:", cam.row, cam.col);
     let tracer = Tracer {
         scene,
         settings,
         sampler,
         render_c,
-        rows_of_camera: (0..render_c.rows())
-            .filter(|&r| render_c.row_labels[r].starts_with(&label))
-            .collect(),
+        rows_of_camera: rig.channel_rows(camera_index).collect(),
         band_taps: band_taps(&rig.reconstruction_shape()?),
     };
     let (clean_ideal, truth, depth) = tracer.trace(&camera);

@@ -132,6 +132,7 @@ fn envi_seeds(scratch: &Path) -> Vec<Vec<u8>> {
     let cube = EnviCube {
         image: Image::new(3, 2, 4, (0..24).map(|v| v as f32 * 0.1).collect()).unwrap(),
         wavelengths: Some(vec![450.0, 500.0, 550.0, 600.0]),
+        band_names: Some(["a", "b", "c", "d"].map(String::from).to_vec()),
     };
     write_envi(&path, &cube, "fuzz seed").unwrap();
     let mut seed = std::fs::read(&path).unwrap();
