@@ -4,6 +4,7 @@
 use anaglyph_core::demux::Solver;
 use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::filters::SelectionCriterion;
+use anaglyph_core::plane_calibration::BoardPattern;
 use anaglyph_core::reconstruct::{DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE};
 use anaglyph_core::rig::OutOfBand;
 use clap::{Parser, Subcommand, ValueEnum};
@@ -32,6 +33,9 @@ pub enum Command {
     Rig(RigCommand),
     /// Choose the filters that make the sensing matrix best conditioned (or least noisy).
     SelectFilters(SelectFiltersArgs),
+    /// Calibrate the array to a plane from one checkerboard capture per camera: each
+    /// camera's homography onto the reference camera, for `reconstruct --calibration`.
+    Calibrate(CalibrateArgs),
     /// Compute a filter's transmission from spectrometer readings without (s0) and with (s1) it.
     CalibrateFilter(CalibrateFilterArgs),
     /// Solve Eq. 6 for every pixel of a measurement array.
@@ -415,6 +419,41 @@ impl From<OutOfBandArg> for OutOfBand {
             OutOfBandArg::Clamp => OutOfBand::Clamp,
             OutOfBandArg::Ignore => OutOfBand::Ignore,
         }
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct CalibrateArgs {
+    /// Inner corners of the checkerboard, COLSxROWS (9x6 for a board of 10 × 7 squares);
+    /// the whole board must be seen by every camera.
+    #[arg(long)]
+    pub checkerboard: BoardPattern,
+    /// Folder of checkerboard captures named r{row}c{col}.png|tif, one per camera.
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Rig file (TOML): which cameras there are.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// Output folder: r{row}c{col}.json (OpenCV FileStorage `homography`), corners/,
+    /// manifest.json with residuals; give it to `reconstruct --calibration`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The camera the array is registered to.
+    #[arg(long, default_value = "r0c0", value_parser = parse_camera)]
+    pub reference: (usize, usize),
+    /// Fit affine maps (6 parameters) instead of homographies (8).
+    #[arg(long)]
+    pub affine: bool,
+    /// Replace the output folder even if anaglyph did not write it.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// A camera named `r<row>c<col>`.
+fn parse_camera(text: &str) -> Result<(usize, usize), String> {
+    match parse_views(text)? {
+        ViewList::Some(list) if list.len() == 1 => Ok(list[0]),
+        _ => Err(format!("'{text}': expected one camera, e.g. r1c1")),
     }
 }
 

@@ -1,5 +1,6 @@
 //! One module per subcommand; `run` dispatches.
 
+mod calibrate;
 mod calibrate_filter;
 mod demo;
 mod demo_light_field;
@@ -22,6 +23,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Demo(args) => demo::run(args),
         Command::Rig(args) => rig::run(args),
         Command::SelectFilters(args) => select_filters::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
         Command::CalibrateFilter(args) => calibrate_filter::run(args),
         Command::Demux(args) => demux::run(args),
         Command::Simulate(args) => simulate::run(args),

@@ -47,6 +47,7 @@ pub mod interpolation;
 pub mod io;
 pub mod memory;
 pub mod metrics;
+pub mod plane_calibration;
 pub mod reconstruct;
 pub mod rectify;
 pub mod refine;

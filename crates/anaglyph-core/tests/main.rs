@@ -2,6 +2,7 @@
 //! instead of five): the simulator, the spectral core, stereo, rectification and the
 //! whole reconstruction, against truth the code under test does not compute.
 
+mod plane_calibration;
 mod reconstruction;
 mod rectification;
 mod simulator;

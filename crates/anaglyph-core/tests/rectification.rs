@@ -8,7 +8,7 @@
 use anaglyph_core::evaluation::score_cube;
 use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
-use anaglyph_core::rectify::Rectification;
+use anaglyph_core::rectify::{Calibration, CameraModel, Rectification};
 use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile};
@@ -116,6 +116,18 @@ fn quadrant_means(blocks: &[[f64; 4]]) -> Vec<(usize, f64)> {
         .collect()
 }
 
+/// Every camera's calibrated pose (each must have one).
+fn pose_models(captures: &ArrayCaptures) -> Vec<(usize, usize, CameraModel)> {
+    captures
+        .cameras
+        .iter()
+        .map(|c| match &c.calibration {
+            Some(Calibration::Pose(model)) => (c.row, c.col, model.clone()),
+            other => panic!("r{}c{}: not a pose calibration: {other:?}", c.row, c.col),
+        })
+        .collect()
+}
+
 #[test]
 fn rotated_cameras_are_resampled_onto_the_ideal_image_plane() {
     let jittered = simulate(Some(JITTER), false);
@@ -129,14 +141,12 @@ fn rotated_cameras_are_resampled_onto_the_ideal_image_plane() {
     // The rig file the simulator wrote names each camera's calibration file.
     let loaded = Rig::load(&dir.join("rig.toml")).unwrap();
     let captures = ArrayCaptures::load(&loaded, None, None, None).unwrap();
-    let models = captures
-        .cameras
-        .iter()
-        .map(|c| (c.row, c.col, c.calibration.clone().expect("calibration")))
-        .collect();
-    let plan = Rectification::plan(models, WIDTH, HEIGHT).unwrap();
-    assert!((plan.focal_px - 450.0).abs() < 1e-6);
-    assert!((plan.baseline_mm[0] - 30.0).abs() < 1e-6 && (plan.baseline_mm[1] - 50.0).abs() < 1e-6);
+    let plan = Rectification::plan(pose_models(&captures), WIDTH, HEIGHT).unwrap();
+    let common = plan.common.unwrap();
+    assert!((common.focal_px - 450.0).abs() < 1e-6);
+    assert!(
+        (common.baseline_mm[0] - 30.0).abs() < 1e-6 && (common.baseline_mm[1] - 50.0).abs() < 1e-6
+    );
     let (mut worst, mut sum, mut count) = (0.0f64, 0.0, 0.0);
     for (k, (cam, view)) in captures.cameras.iter().zip(&ideal.views).enumerate() {
         let rectified = plan.resample(k, &cam.capture, 0.999).unwrap();
@@ -249,12 +259,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         let inside: Vec<bool> = match &captures.cameras[0].calibration {
             None => vec![true; WIDTH * HEIGHT],
             Some(_) => {
-                let models = captures
-                    .cameras
-                    .iter()
-                    .map(|c| (c.row, c.col, c.calibration.clone().unwrap()))
-                    .collect();
-                let plan = Rectification::plan(models, WIDTH, HEIGHT).unwrap();
+                let plan = Rectification::plan(pose_models(&captures), WIDTH, HEIGHT).unwrap();
                 (0..WIDTH * HEIGHT)
                     .map(|i| {
                         let (x, y) = plan

@@ -13,7 +13,7 @@
 use super::dark_level::Dark;
 use crate::image::Image;
 use crate::io::{read_image_header, read_linear_image, ImageHeader, LinearImage};
-use crate::rectify::CameraModel;
+use crate::rectify::{Calibration, CameraModel};
 use crate::register::{fill_from_nearest, NormalisedView};
 use crate::rig::{Camera, Rig, SensingMatrix};
 use crate::simulate::Simulation;
@@ -29,9 +29,9 @@ pub const UNEVEN_WHITE_WARNING: f64 = 0.05;
 /// says the white board (or the exposure metadata) does not match the capture.
 pub const BRIGHTER_THAN_WHITE_WARNING: f64 = 0.25;
 /// Picture extensions looked for in capture folders.
-const EXTENSIONS: [&str; 3] = ["png", "tif", "tiff"];
+pub(crate) const EXTENSIONS: [&str; 3] = ["png", "tif", "tiff"];
 /// Calibration extensions looked for in calibration folders.
-const CALIBRATION_EXTENSIONS: [&str; 3] = ["json", "yml", "yaml"];
+const CALIBRATION_EXTENSIONS: [&str; 4] = ["json", "yml", "yaml", "npy"];
 
 /// One camera's pictures.
 #[derive(Debug, Clone)]
@@ -42,8 +42,9 @@ pub struct CameraCapture {
     pub white: Option<LinearImage>,
     /// Exposure metadata (see [`crate::rig::CameraEntry::exposure`]).
     pub exposure: Option<f64>,
-    /// Calibrated geometry; when the cameras have one, reconstruction rectifies first.
-    pub calibration: Option<CameraModel>,
+    /// Calibrated geometry (a pose, or a homography onto the reference camera through a
+    /// plane); when the cameras have one, reconstruction rectifies first.
+    pub calibration: Option<Calibration>,
 }
 
 /// The captures of the whole array, in the rig's camera order.
@@ -74,7 +75,13 @@ pub struct CameraCalibration {
 
 /// `DIR/r{row}c{col}.{ext}` for the first of `extensions` that exists; `what` names the
 /// file in the error.
-fn find_in(dir: &Path, row: usize, col: usize, extensions: &[&str], what: &str) -> Result<PathBuf> {
+pub(crate) fn find_in(
+    dir: &Path,
+    row: usize,
+    col: usize,
+    extensions: &[&str],
+    what: &str,
+) -> Result<PathBuf> {
     extensions
         .iter()
         .map(|e| dir.join(format!("r{row}c{col}.{e}")))
@@ -227,7 +234,7 @@ impl ArrayCaptures {
             let calibration = files
                 .calibration
                 .as_deref()
-                .map(CameraModel::load)
+                .map(Calibration::load)
                 .transpose()?;
             let dark = dark_of(cam, files)?;
             let read = |path: &Path| -> Result<LinearImage> {
@@ -302,7 +309,7 @@ impl ArrayCaptures {
                     calibration: simulation
                         .settings
                         .pose_jitter
-                        .map(|_| CameraModel::from_pinhole(&v.camera)),
+                        .map(|_| Calibration::Pose(CameraModel::from_pinhole(&v.camera))),
                 })
                 .collect(),
         }

@@ -59,6 +59,7 @@ use crate::solve::{SolvePlan, SolveReport, SolveSettings};
 use crate::{Error, Result};
 use calibration::{calibrate_array, CalibratedArray};
 use capture_checks::check_capture_signal;
+pub(crate) use inputs::{find_in, EXTENSIONS as PICTURE_EXTENSIONS};
 use rectification::rectify_array;
 use registration::{register_array, RegisteredArray};
 use view::ViewPass;

@@ -5,7 +5,7 @@
 //! captures carry no calibrations, so they are taken as already rectified).
 
 use super::{ArrayCaptures, CameraCapture, RunLog, Stage, SATURATION_WARNING};
-use crate::rectify::{Rectification, GRID_OFFSET_WARNING};
+use crate::rectify::{Calibration, Rectification, GRID_OFFSET_WARNING};
 use crate::rig::Rig;
 use crate::{Error, Result};
 
@@ -42,12 +42,7 @@ pub(super) fn rectify_array(
         ));
     }
     let clock = std::time::Instant::now();
-    let models = captures
-        .cameras
-        .iter()
-        .filter_map(|c| c.calibration.clone().map(|m| (c.row, c.col, m)))
-        .collect();
-    let plan = Rectification::plan(models, captures.width, captures.height)?;
+    let plan = plan_of(captures)?;
     let total = captures.cameras.len();
     let mut cameras = Vec::with_capacity(total);
     for (k, cam) in captures.cameras.iter().enumerate() {
@@ -76,6 +71,32 @@ pub(super) fn rectify_array(
     }))
 }
 
+/// The plan of captures that all carry calibrations of one kind (poses or homographies).
+fn plan_of(captures: &ArrayCaptures) -> Result<Rectification> {
+    let (mut poses, mut planes) = (Vec::new(), Vec::new());
+    for c in &captures.cameras {
+        match &c.calibration {
+            Some(Calibration::Pose(model)) => poses.push((c.row, c.col, model.clone())),
+            Some(Calibration::Plane(h)) => planes.push((c.row, c.col, *h)),
+            None => {}
+        }
+    }
+    let (w, h) = (captures.width, captures.height);
+    match (poses.is_empty(), planes.is_empty()) {
+        (false, true) => Rectification::plan(poses, w, h),
+        (true, false) => Rectification::through_plane(planes, w, h),
+        _ => Err(Error::mismatch(
+            "rectification",
+            format!(
+                "{} cameras calibrated with poses and {} with homographies",
+                poses.len(),
+                planes.len()
+            ),
+            "one kind of calibration for the whole array",
+        )),
+    }
+}
+
 fn camera_names(list: &[&CameraCapture]) -> String {
     list.iter()
         .map(|c| format!("r{}c{}", c.row, c.col))
@@ -99,7 +120,7 @@ fn rectification_warnings(
             100.0 * offset
         ));
     }
-    let [bx, by] = plan.baseline_mm;
+    let [bx, by] = plan.common.map_or([0.0; 2], |c| c.baseline_mm);
     let (rig_bx, rig_by) = (
         rig.file.baseline_mm.horizontal,
         rig.file.baseline_mm.vertical,

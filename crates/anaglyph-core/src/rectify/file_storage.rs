@@ -101,6 +101,10 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
                     .collect::<Result<Vec<f64>>>()?;
                 Some(matrix(name, size("rows")?, size("cols")?, data, context)?)
             }
+            // A plain array of rows, e.g. `"homography": [[1, 0, 4], [0, 1, 0], [0, 0, 1]]`.
+            serde_json::Value::Array(rows) if rows.iter().all(|r| r.is_array()) => {
+                Some(rows_matrix(name, rows, context)?)
+            }
             // Strings, lists of views and other nodes are not needed for calibration.
             _ => None,
         };
@@ -109,6 +113,29 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
         }
     }
     Ok(out)
+}
+
+/// A matrix given as a JSON array of equally long rows of numbers.
+fn rows_matrix(name: &str, rows: &[serde_json::Value], context: &str) -> Result<StoredValue> {
+    let rows: Vec<&Vec<serde_json::Value>> = rows.iter().filter_map(|r| r.as_array()).collect();
+    let cols = rows.first().map_or(0, |r| r.len());
+    let mut data = Vec::with_capacity(rows.len() * cols);
+    for row in &rows {
+        if row.len() != cols {
+            return Err(Error::bad_field(
+                context,
+                format!("matrix '{name}'"),
+                format!("rows of {} and {} values", cols, row.len()),
+                "rows of equal length",
+            ));
+        }
+        for v in row.iter() {
+            data.push(v.as_f64().ok_or_else(|| {
+                Error::bad_field(context, format!("matrix '{name}'"), v, "numbers")
+            })?);
+        }
+    }
+    matrix(name, rows.len(), cols, data, context)
 }
 
 fn matrix(

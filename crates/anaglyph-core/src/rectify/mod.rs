@@ -14,14 +14,22 @@
 //! Rotations, intrinsics and lens distortion are removed exactly. An optical centre off the
 //! fitted grid cannot be removed by any image warp (its parallax depends on depth), so it is
 //! measured and reported ([`CameraRectification::grid_offset_mm`]).
-//! In: a [`CameraModel`] per camera. Out: a [`Rectification`] that resamples each capture;
+//! An array calibrated to a plane instead gives each camera a [`Homography`] onto the
+//! reference camera ([`Rectification::through_plane`]): the plane's points land at zero
+//! disparity, and the rest keep their parallax along the baselines (signed).
+//!
+//! In: a [`Calibration`] per camera. Out: a [`Rectification`] that resamples each capture;
 //! the rest of the pipeline then works on the rectified array.
 
+mod calibration;
 mod camera_model;
 mod file_storage;
+mod homography;
 
+pub use calibration::Calibration;
 pub use camera_model::{apply, identity, rodrigues, transpose, CameraModel, Matrix3};
 pub use file_storage::{parse_json, parse_yaml, read_file_storage, FileStorage, StoredValue};
+pub use homography::Homography;
 
 use crate::interpolation::catmull_rom_weights;
 use crate::io::LinearImage;
@@ -40,6 +48,16 @@ const MIN_AXIS_COSINE: f64 = 0.5;
 /// Spacing of the pixels at which a map's largest correction is measured.
 const CORRECTION_SAMPLING_PX: usize = 8;
 
+/// How a camera's rectified pixels are found in its capture.
+#[derive(Debug, Clone)]
+pub enum CameraMap {
+    /// Through the calibrated pose and lens onto the common image plane.
+    Pose(CameraModel),
+    /// Through the plane onto the reference camera: `from_reference` maps a rectified
+    /// (reference) pixel to the capture.
+    Plane { from_reference: Homography },
+}
+
 /// What rectification does to one camera.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraRectification {
@@ -47,17 +65,16 @@ pub struct CameraRectification {
     pub col: usize,
     /// Largest displacement of the rectifying map, pixels.
     pub max_correction_px: f64,
-    /// Distance of the optical centre from the fitted grid, in the calibration's unit (mm).
-    pub grid_offset_mm: f64,
+    /// Distance of the optical centre from the fitted grid, in the calibration's unit (mm);
+    /// None for homographies, which do not tell where the camera is.
+    pub grid_offset_mm: Option<f64>,
     #[serde(skip)]
-    pub model: CameraModel,
+    pub map: CameraMap,
 }
 
-/// The common image plane of an array and the map of every camera onto it.
-#[derive(Debug, Clone, Serialize)]
-pub struct Rectification {
-    pub width: usize,
-    pub height: usize,
+/// The common camera that calibrated poses are rectified to.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct CommonCamera {
     /// Focal length of the rectified cameras, pixels.
     pub focal_px: f64,
     /// Principal point of the rectified cameras (OpenCV pixel coordinates).
@@ -66,6 +83,16 @@ pub struct Rectification {
     pub orientation: Matrix3,
     /// Fitted horizontal and vertical baselines (0 where the array has one column or row).
     pub baseline_mm: [f64; 2],
+}
+
+/// The common image plane of an array and the map of every camera onto it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Rectification {
+    pub width: usize,
+    pub height: usize,
+    /// The common camera of pose calibrations; None: homographies through a plane onto
+    /// the reference camera's image.
+    pub common: Option<CommonCamera>,
     pub cameras: Vec<CameraRectification>,
 }
 
@@ -208,13 +235,15 @@ impl Rectification {
         }
         let focal_px =
             cameras.iter().map(|(_, _, m)| m.focal_px()).sum::<f64>() / cameras.len() as f64;
-        let mut plan = Rectification {
+        let plan = Rectification {
             width,
             height,
-            focal_px,
-            principal_point: [0.5 * width as f64 - 0.5, 0.5 * height as f64 - 0.5],
-            orientation: [x_axis, y_axis, z_axis],
-            baseline_mm: [norm(u), norm(v)],
+            common: Some(CommonCamera {
+                focal_px,
+                principal_point: [0.5 * width as f64 - 0.5, 0.5 * height as f64 - 0.5],
+                orientation: [x_axis, y_axis, z_axis],
+                baseline_mm: [norm(u), norm(v)],
+            }),
             cameras: cameras
                 .into_iter()
                 .map(|(row, col, model)| {
@@ -224,13 +253,57 @@ impl Rectification {
                         row,
                         col,
                         max_correction_px: 0.0,
-                        grid_offset_mm: norm([p[0] - g[0], p[1] - g[1], p[2] - g[2]]),
-                        model,
+                        grid_offset_mm: Some(norm([p[0] - g[0], p[1] - g[1], p[2] - g[2]])),
+                        map: CameraMap::Pose(model),
                     }
                 })
                 .collect(),
         };
-        for k in 0..plan.cameras.len() {
+        Ok(plan.with_corrections())
+    }
+
+    /// Plans the rectification of an array calibrated to a plane: cameras given as (row,
+    /// col, homography onto the reference camera), all of `width × height` pixels. Each
+    /// homography is checked on the frame ([`Homography::check_frame`]).
+    pub fn through_plane(
+        cameras: Vec<(usize, usize, Homography)>,
+        width: usize,
+        height: usize,
+    ) -> Result<Self> {
+        if cameras.is_empty() || width < 2 || height < 2 {
+            return Err(Error::mismatch(
+                "rectification",
+                format!("{} cameras of {width}x{height} px", cameras.len()),
+                "at least one camera of at least 2x2 px",
+            ));
+        }
+        for (r, c, h) in &cameras {
+            h.check_frame(width, height, &format!("homography of camera r{r}c{c}"))?;
+        }
+        let plan = Rectification {
+            width,
+            height,
+            common: None,
+            cameras: cameras
+                .into_iter()
+                .map(|(row, col, h)| CameraRectification {
+                    row,
+                    col,
+                    max_correction_px: 0.0,
+                    grid_offset_mm: None,
+                    map: CameraMap::Plane {
+                        from_reference: h.inverse(),
+                    },
+                })
+                .collect(),
+        };
+        Ok(plan.with_corrections())
+    }
+
+    /// The plan with each camera's largest correction measured.
+    fn with_corrections(mut self) -> Self {
+        let (width, height) = (self.width, self.height);
+        for k in 0..self.cameras.len() {
             let mut worst = 0.0f64;
             let xs = (0..width)
                 .step_by(CORRECTION_SAMPLING_PX)
@@ -240,38 +313,47 @@ impl Rectification {
                     .step_by(CORRECTION_SAMPLING_PX)
                     .chain([height - 1])
                 {
-                    worst = worst.max(match plan.source_position(k, x as f64, y as f64) {
+                    worst = worst.max(match self.source_position(k, x as f64, y as f64) {
                         Some((sx, sy)) => (sx - x as f64).hypot(sy - y as f64),
                         None => f64::INFINITY,
                     });
                 }
             }
-            plan.cameras[k].max_correction_px = worst;
+            self.cameras[k].max_correction_px = worst;
         }
-        Ok(plan)
+        self
     }
 
     /// Where rectified pixel (x, y) of camera `camera` lies in its capture (OpenCV pixel
     /// coordinates, i.e. array indices); None if the camera cannot see that direction.
     pub fn source_position(&self, camera: usize, x: f64, y: f64) -> Option<(f64, f64)> {
-        let f = self.focal_px;
-        let local = [
-            (x - self.principal_point[0]) / f,
-            (y - self.principal_point[1]) / f,
-            1.0,
-        ];
-        let world = apply(&transpose(&self.orientation), local);
-        self.cameras[camera].model.project_direction(world)
+        match (&self.cameras[camera].map, &self.common) {
+            (CameraMap::Plane { from_reference }, _) => from_reference.apply(x, y),
+            (CameraMap::Pose(model), Some(common)) => {
+                let f = common.focal_px;
+                let local = [
+                    (x - common.principal_point[0]) / f,
+                    (y - common.principal_point[1]) / f,
+                    1.0,
+                ];
+                let world = apply(&transpose(&common.orientation), local);
+                model.project_direction(world)
+            }
+            (CameraMap::Pose(_), None) => None,
+        }
     }
 
     /// Largest distance of an optical centre from the fitted grid, as a fraction of the
     /// larger fitted baseline.
     pub fn worst_grid_offset(&self) -> f64 {
-        let baseline = self.baseline_mm[0].max(self.baseline_mm[1]);
+        let Some(common) = &self.common else {
+            return 0.0;
+        };
+        let baseline = common.baseline_mm[0].max(common.baseline_mm[1]);
         let worst = self
             .cameras
             .iter()
-            .map(|c| c.grid_offset_mm)
+            .filter_map(|c| c.grid_offset_mm)
             .fold(0.0, f64::max);
         if baseline > 0.0 {
             worst / baseline
@@ -387,9 +469,11 @@ mod tests {
     #[test]
     fn a_parallel_array_maps_to_itself() {
         let plan = Rectification::plan(array(0.0, 0.0), 160, 120).unwrap();
-        assert!((plan.focal_px - 500.0).abs() < 1e-9);
+        let common = plan.common.unwrap();
+        assert!((common.focal_px - 500.0).abs() < 1e-9);
         assert!(
-            (plan.baseline_mm[0] - 30.0).abs() < 1e-9 && (plan.baseline_mm[1] - 50.0).abs() < 1e-9
+            (common.baseline_mm[0] - 30.0).abs() < 1e-9
+                && (common.baseline_mm[1] - 50.0).abs() < 1e-9
         );
         for (k, cam) in plan.cameras.iter().enumerate() {
             assert!(
@@ -397,7 +481,7 @@ mod tests {
                 "{k}: {}",
                 cam.max_correction_px
             );
-            assert!(cam.grid_offset_mm < 1e-9);
+            assert!(cam.grid_offset_mm.unwrap() < 1e-9);
         }
         let image = LinearImage {
             width: 160,

@@ -119,13 +119,7 @@ pub fn estimate_search_range(
         },
         &|_, _| {},
     )?;
-    let mut values: Vec<f32> = registration
-        .disparities
-        .iter()
-        .flatten()
-        .copied()
-        .filter(|d| d.is_finite())
-        .collect();
+    let mut values = agreeing_disparities(&coarse, &registration.disparities, geometry);
     if values.is_empty() {
         return Err(Error::unusable(
             "the coarse registration",
@@ -150,6 +144,65 @@ pub fn estimate_search_range(
         covered_disparity_px: [low * f, high.max(0.0) * f],
         seconds: clock.elapsed().as_secs_f64(),
     })
+}
+
+/// Largest difference (coarse pixels) between a pixel's disparity and the one another view
+/// gives the point it matches for the two to agree.
+const AGREEMENT_PX: f32 = 1.0;
+
+/// The finite disparities of `maps` (one per view of `views`) at pixels that their own
+/// view measures and whose match in some other view is measured there and agrees
+/// (within [`AGREEMENT_PX`]). A pixel without one has only SGM's propagated guess or a
+/// spurious match: on an array registered to a plane by homographies, where the warp
+/// leaves the margins of shifted cameras unmeasured, such guesses widened the true −5:5
+/// to −22:30 (and cost 1 dB); with the check it is −10:11.
+fn agreeing_disparities(
+    views: &[GridImage],
+    maps: &[Vec<f32>],
+    geometry: &ArrayGeometry,
+) -> Vec<f32> {
+    // The disparity view `j` gives at (x, y), if it measures that pixel.
+    let at = |j: usize, x: f64, y: f64| {
+        let view = &views[j];
+        let (w, h) = (view.image.width, view.image.height);
+        let (xi, yi) = (x.round(), y.round());
+        if !(xi >= 0.0 && yi >= 0.0 && xi < w as f64 && yi < h as f64) {
+            return None;
+        }
+        let i = yi as usize * w + xi as usize;
+        view.measured
+            .as_deref()
+            .is_none_or(|m| m[i])
+            .then_some(maps[j][i])
+    };
+    let mut values = Vec::new();
+    for (v, view) in views.iter().enumerate() {
+        let w = view.image.width;
+        let shifts: Vec<(usize, (f64, f64))> = (0..views.len())
+            .filter(|&j| j != v)
+            .map(|j| {
+                (
+                    j,
+                    geometry.shift((view.row, view.col), (views[j].row, views[j].col)),
+                )
+            })
+            .collect();
+        for (i, &d) in maps[v].iter().enumerate() {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            if !d.is_finite() || at(v, x, y).is_none() {
+                continue;
+            }
+            let agrees = |&(j, (sx, sy)): &(usize, (f64, f64))| {
+                let dd = f64::from(d);
+                at(j, x + dd * sx, y + dd * sy)
+                    .is_some_and(|other| (other - d).abs() <= AGREEMENT_PX)
+            };
+            if shifts.is_empty() || shifts.iter().any(agrees) {
+                values.push(d);
+            }
+        }
+    }
+    values
 }
 
 #[cfg(test)]

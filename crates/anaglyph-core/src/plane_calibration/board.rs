@@ -1,0 +1,123 @@
+//! Finding a checkerboard's inner corners in one camera's capture: the `calib-targets`
+//! ChESS detector finds, refines and labels them on an 8-bit copy blurred by
+//! [`DETECTION_BLUR`] and stretched between the 1st and 99th percentiles, so that dim
+//! narrow-band captures still show the board. A gradient-orthogonality refinement on the
+//! linear image (OpenCV's `cornerSubPix`) was tried after it and dropped: on simulated
+//! boards of 17 px squares it moved the median error from 0.015 to 0.06 px.
+//!
+//! In: a grey linear image and the board's inner-corner count. Out: the corners in board
+//! order (row by row from the top-left corner as the image shows it), or an error naming
+//! the camera and the pattern.
+
+use super::BoardPattern;
+use crate::stereo::GreyImage;
+use crate::{Error, Result};
+use calib_targets_chessboard::{
+    default_chess_config, detect_corner_frame, ChessboardDetector, ChessboardParams, GrayImageView,
+};
+
+/// Gaussian blur (σ, px) of the copy the detector sees: on boards rendered at noise 0.03
+/// and contrast 0.06 the detector labelled 52 of 54 corners with it and 11 without; on
+/// clean boards its median error went from 0.015 to 0.004 px.
+pub const DETECTION_BLUR: f32 = 1.5;
+
+/// The inner corners of `pattern` in `image` (see the module docs); `camera` names the
+/// camera in errors.
+pub fn detect_board(
+    image: &GreyImage,
+    pattern: BoardPattern,
+    camera: &str,
+) -> Result<Vec<[f64; 2]>> {
+    let grey = stretched_8bit(&gaussian_blur(image, DETECTION_BLUR));
+    let view = GrayImageView {
+        width: image.width,
+        height: image.height,
+        data: &grey,
+    };
+    let frame = detect_corner_frame(&view, &default_chess_config());
+    let detection = ChessboardDetector::new(ChessboardParams::default())
+        .ok()
+        .and_then(|detector| detector.detect(&frame.corners));
+    let not_found = |found: usize| {
+        Error::unusable(
+            format!("camera {camera}"),
+            format!(
+                "no {pattern} checkerboard found in its calibration capture ({found} inner \
+                 corners labelled; the whole board must be seen, with a white border)"
+            ),
+        )
+    };
+    let detection = detection.ok_or_else(|| not_found(0))?;
+    let labelled: Vec<(i32, i32, [f64; 2])> = detection
+        .corners
+        .iter()
+        .map(|c| {
+            (
+                c.grid.u,
+                c.grid.v,
+                [f64::from(c.position.x), f64::from(c.position.y)],
+            )
+        })
+        .collect();
+    in_board_order(&labelled, pattern).ok_or_else(|| not_found(labelled.len()))
+}
+
+/// The labelled corners row by row when they are exactly the `cols × rows` grid (or the
+/// `rows × cols` one, a board turned a quarter); None otherwise.
+fn in_board_order(
+    labelled: &[(i32, i32, [f64; 2])],
+    pattern: BoardPattern,
+) -> Option<Vec<[f64; 2]>> {
+    let (u_max, v_max) = labelled
+        .iter()
+        .fold((-1, -1), |(a, b), &(u, v, _)| (a.max(u), b.max(v)));
+    let (cols, rows) = ((u_max + 1) as usize, (v_max + 1) as usize);
+    let fits = (cols, rows) == (pattern.cols, pattern.rows)
+        || (cols, rows) == (pattern.rows, pattern.cols);
+    if !fits || labelled.len() != cols * rows || labelled.iter().any(|&(u, v, _)| u < 0 || v < 0) {
+        return None;
+    }
+    let mut ordered = vec![None; cols * rows];
+    for &(u, v, p) in labelled {
+        ordered[v as usize * cols + u as usize] = Some(p);
+    }
+    ordered.into_iter().collect()
+}
+
+/// `image` between its 1st and 99th percentiles, as 8 bits.
+fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
+    let mut sorted: Vec<f32> = image
+        .data
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    sorted.sort_by(f32::total_cmp);
+    let pick = |q: usize| sorted.get(sorted.len() * q / 100).copied().unwrap_or(0.0);
+    let (lo, hi) = (pick(1), pick(99));
+    let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
+    image
+        .data
+        .iter()
+        .map(|&v| ((v - lo) * scale).clamp(0.0, 255.0).round() as u8)
+        .collect()
+}
+
+/// `image` blurred by a Gaussian of `sigma` pixels (`image::imageops::blur`).
+fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
+    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
+        image.width as u32,
+        image.height as u32,
+        image.data.clone(),
+    );
+    let data = match buffer {
+        Some(buffer) => image::imageops::blur(&buffer, sigma).into_raw(),
+        None => image.data.clone(),
+    };
+    GreyImage {
+        channels: 1,
+        width: image.width,
+        height: image.height,
+        data,
+    }
+}

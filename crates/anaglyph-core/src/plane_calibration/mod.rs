@@ -1,0 +1,260 @@
+//! Calibration of an array to a plane from one checkerboard capture per camera: each
+//! camera's inner corners are found to subpixel precision ([`detect_board`]), and a homography (or
+//! an affine map) from each camera onto the reference camera is fitted to them. The
+//! checkerboard's plane then has zero disparity in the registered array; `reconstruct`
+//! reads the maps as the cameras' calibrations ([`crate::rectify::Calibration::Plane`]).
+//!
+//! ```text
+//! checkerboard captures -> corners   ChESS detector (calib-targets), subpixel   board.rs
+//!   -> fit        normalised DLT (or least-squares affine) onto the reference's corners
+//!   -> check      no fold, the reference's centre seen (Homography::check_frame)
+//!   -> write      rRcC.json (OpenCV FileStorage `homography`), report.json, corners/   output.rs
+//! ```
+//!
+//! In: grey captures with their grid positions, the board pattern, the reference camera.
+//! Out: a [`PlaneCalibration`].
+
+mod board;
+mod output;
+
+pub use board::{detect_board, DETECTION_BLUR};
+pub use output::write_plane_calibration;
+
+use crate::io::{read_image_header, read_linear_image};
+use crate::reconstruct::{find_in, PICTURE_EXTENSIONS};
+use crate::rectify::Homography;
+use crate::rig::Rig;
+use crate::stereo::GreyImage;
+use crate::{Error, Result};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A checkerboard's inner corners: `cols` across, `rows` down (`9x6` for a board of
+/// 10 × 7 squares).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct BoardPattern {
+    pub cols: usize,
+    pub rows: usize,
+}
+
+impl std::fmt::Display for BoardPattern {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}", self.cols, self.rows)
+    }
+}
+
+impl std::str::FromStr for BoardPattern {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let (cols, rows) = s
+            .split_once(['x', 'X'])
+            .ok_or_else(|| format!("'{s}': expected COLSxROWS inner corners, e.g. 9x6"))?;
+        let parse = |v: &str| {
+            v.trim()
+                .parse::<usize>()
+                .ok()
+                .filter(|&n| (2..=100).contains(&n))
+        };
+        match (parse(cols), parse(rows)) {
+            (Some(cols), Some(rows)) => Ok(BoardPattern { cols, rows }),
+            _ => Err(format!(
+                "'{s}': expected 2 to 100 inner corners each way, e.g. 9x6"
+            )),
+        }
+    }
+}
+
+/// The kind of map fitted from each camera onto the reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlaneModel {
+    /// 8 degrees of freedom: any plane, any camera rotation.
+    #[default]
+    Homography,
+    /// 6 degrees of freedom: cameras parallel enough that perspective is negligible.
+    Affine,
+}
+
+/// One camera's checkerboard capture.
+#[derive(Debug, Clone)]
+pub struct BoardCapture {
+    pub row: usize,
+    pub col: usize,
+    pub image: GreyImage,
+}
+
+/// One camera's fitted map and how well it fits.
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraPlaneFit {
+    pub row: usize,
+    pub col: usize,
+    /// Camera pixel → reference pixel, row-major.
+    pub homography: [[f64; 3]; 3],
+    /// Root-mean-square and largest distance between the mapped corners and the
+    /// reference's, pixels.
+    pub residual_rms_px: f64,
+    pub residual_max_px: f64,
+    /// The detected corners in board order.
+    #[serde(skip)]
+    pub corners: Vec<[f64; 2]>,
+}
+
+/// The calibration of an array to a checkerboard's plane.
+#[derive(Debug, Clone, Serialize)]
+pub struct PlaneCalibration {
+    pub pattern: BoardPattern,
+    pub model: PlaneModel,
+    /// (row, col) of the reference camera.
+    pub reference: (usize, usize),
+    pub width: usize,
+    pub height: usize,
+    pub cameras: Vec<CameraPlaneFit>,
+    pub seconds: f64,
+}
+
+/// Reads every camera's checkerboard capture `dir/r{row}c{col}.png|tif|tiff` as grey (the
+/// mean of its channels), after checking that all exist and share one size.
+pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
+    let paths: Vec<PathBuf> = rig
+        .cameras
+        .iter()
+        .map(|c| {
+            find_in(
+                dir,
+                c.row,
+                c.col,
+                &PICTURE_EXTENSIONS,
+                "checkerboard capture",
+            )
+        })
+        .collect::<Result<_>>()?;
+    let mut size = None;
+    for path in &paths {
+        let header = read_image_header(path)?;
+        match size {
+            None => size = Some((header.width, header.height)),
+            Some((w, h)) if (w, h) != (header.width, header.height) => {
+                return Err(Error::mismatch(
+                    path.display().to_string(),
+                    format!("{}x{} px", header.width, header.height),
+                    format!("{w}x{h} px like the other cameras' captures"),
+                ))
+            }
+            Some(_) => {}
+        }
+    }
+    rig.cameras
+        .iter()
+        .zip(&paths)
+        .map(|(cam, path)| {
+            let image = read_linear_image(path)?;
+            let channels = image.channels.max(1);
+            let data = image
+                .data
+                .chunks_exact(channels)
+                .map(|p| p.iter().sum::<f32>() / channels as f32)
+                .collect();
+            Ok(BoardCapture {
+                row: cam.row,
+                col: cam.col,
+                image: GreyImage {
+                    channels: 1,
+                    width: image.width,
+                    height: image.height,
+                    data,
+                },
+            })
+        })
+        .collect()
+}
+
+/// Calibrates `captures` (one per camera, all of one size) to the plane of the
+/// checkerboard they show (see the module docs).
+pub fn calibrate_to_plane(
+    captures: &[BoardCapture],
+    pattern: BoardPattern,
+    reference: (usize, usize),
+    model: PlaneModel,
+) -> Result<PlaneCalibration> {
+    let clock = Instant::now();
+    let first = captures
+        .first()
+        .ok_or_else(|| Error::mismatch("plane calibration", "no captures", "one per camera"))?;
+    let (width, height) = (first.image.width, first.image.height);
+    if let Some(odd) = captures
+        .iter()
+        .find(|c| (c.image.width, c.image.height) != (width, height))
+    {
+        return Err(Error::mismatch(
+            format!("checkerboard capture of camera r{}c{}", odd.row, odd.col),
+            format!("{}x{} px", odd.image.width, odd.image.height),
+            format!("{width}x{height} px like the other cameras'"),
+        ));
+    }
+    let reference_index = captures
+        .iter()
+        .position(|c| (c.row, c.col) == reference)
+        .ok_or_else(|| Error::NotFound {
+            what: "reference camera".into(),
+            name: format!("r{}c{}", reference.0, reference.1),
+            available: "the rig's cameras".into(),
+        })?;
+    let corners: Vec<Vec<[f64; 2]>> = captures
+        .par_iter()
+        .map(|c| detect_board(&c.image, pattern, &format!("r{}c{}", c.row, c.col)))
+        .collect::<Result<_>>()?;
+    let target = &corners[reference_index];
+    let cameras = captures
+        .iter()
+        .zip(&corners)
+        .map(|(c, found)| fit_camera(c, found, target, model, (width, height)))
+        .collect::<Result<_>>()?;
+    Ok(PlaneCalibration {
+        pattern,
+        model,
+        reference,
+        width,
+        height,
+        cameras,
+        seconds: clock.elapsed().as_secs_f64(),
+    })
+}
+
+/// The map of one camera's corners onto the reference's, checked on the frame.
+fn fit_camera(
+    capture: &BoardCapture,
+    corners: &[[f64; 2]],
+    target: &[[f64; 2]],
+    model: PlaneModel,
+    (width, height): (usize, usize),
+) -> Result<CameraPlaneFit> {
+    let name = format!("camera r{}c{}", capture.row, capture.col);
+    if corners.len() != target.len() {
+        return Err(Error::mismatch(
+            name,
+            format!("{} corners", corners.len()),
+            format!(
+                "the reference's {} (the board turned a quarter?)",
+                target.len()
+            ),
+        ));
+    }
+    let homography = match model {
+        PlaneModel::Homography => Homography::fit(corners, target)?,
+        PlaneModel::Affine => Homography::fit_affine(corners, target)?,
+    };
+    homography.check_frame(width, height, &format!("{name}'s homography"))?;
+    let residuals = homography.residuals(corners, target);
+    let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
+    Ok(CameraPlaneFit {
+        row: capture.row,
+        col: capture.col,
+        homography: homography.h,
+        residual_rms_px: rms,
+        residual_max_px: residuals.iter().copied().fold(0.0, f64::max),
+        corners: corners.to_vec(),
+    })
+}

@@ -1,0 +1,94 @@
+//! The output folder of `anaglyph calibrate --checkerboard`:
+//!
+//! ```text
+//! OUT/r{row}c{col}.json      OpenCV FileStorage: `homography` (camera pixel -> reference
+//!                            pixel), image_width, image_height; what the rig's
+//!                            `calibration` key and `reconstruct --calibration OUT` read
+//! OUT/corners/r{row}c{col}.png  the capture with its detected corners (first one green)
+//! OUT/manifest.json          pattern, model, reference, per-camera residuals (RMS and
+//!                            largest, px), time, the run id and every file with its CRC
+//! ```
+//!
+//! In: a [`PlaneCalibration`] and the captures it came from. Out: the files above, written
+//! into an [`OutputFolder`] (the caller commits it).
+
+use super::{BoardCapture, PlaneCalibration};
+use crate::io::{write_atomically, OutputFolder};
+use crate::{Error, Result};
+use std::path::Path;
+
+/// Half-length of the cross drawn on each corner, pixels.
+const MARK_PX: i64 = 4;
+
+/// Writes `calibration` into `folder` (the manifest last); returns the number of files.
+pub fn write_plane_calibration(
+    folder: &OutputFolder,
+    calibration: &PlaneCalibration,
+    captures: &[BoardCapture],
+) -> Result<usize> {
+    let dir = folder.path();
+    let corners_dir = dir.join("corners");
+    std::fs::create_dir_all(&corners_dir).map_err(|e| Error::io(&corners_dir, e))?;
+    for (fit, capture) in calibration.cameras.iter().zip(captures) {
+        let name = format!("r{}c{}", fit.row, fit.col);
+        let storage = serde_json::json!({
+            "homography": {
+                "type_id": "opencv-matrix",
+                "rows": 3,
+                "cols": 3,
+                "dt": "d",
+                "data": fit.homography.concat(),
+            },
+            "image_width": calibration.width,
+            "image_height": calibration.height,
+            "reference": format!("r{}c{}", calibration.reference.0, calibration.reference.1),
+        });
+        let text = serde_json::to_string_pretty(&storage).map_err(|e| Error::output(&name, e))?;
+        write_atomically(&dir.join(format!("{name}.json")), |w| {
+            w.write_all(text.as_bytes())
+        })?;
+        write_corner_picture(
+            &corners_dir.join(format!("{name}.png")),
+            capture,
+            &fit.corners,
+        )?;
+    }
+    folder.write_manifest(calibration)
+}
+
+/// The capture (stretched to 8 bits) with a red cross on every corner, green on the first.
+fn write_corner_picture(path: &Path, capture: &BoardCapture, corners: &[[f64; 2]]) -> Result<()> {
+    let image = &capture.image;
+    let (lo, hi) = image
+        .data
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
+    let mut picture = image::RgbImage::from_fn(image.width as u32, image.height as u32, |x, y| {
+        let v = image.data[y as usize * image.width + x as usize];
+        let g = ((v - lo) * scale).clamp(0.0, 255.0) as u8;
+        image::Rgb([g, g, g])
+    });
+    for (k, c) in corners.iter().enumerate() {
+        let colour = if k == 0 {
+            image::Rgb([0, 255, 0])
+        } else {
+            image::Rgb([255, 0, 0])
+        };
+        let (cx, cy) = (c[0].round() as i64, c[1].round() as i64);
+        for o in -MARK_PX..=MARK_PX {
+            for (x, y) in [(cx + o, cy), (cx, cy + o)] {
+                if x >= 0 && y >= 0 && (x as u32) < picture.width() && (y as u32) < picture.height()
+                {
+                    picture.put_pixel(x as u32, y as u32, colour);
+                }
+            }
+        }
+    }
+    picture
+        .save(path)
+        .map_err(|e| Error::output(path.display().to_string(), e))
+}
