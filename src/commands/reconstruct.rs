@@ -331,6 +331,14 @@ fn print_summary(field: &LightField) {
             100.0 * view.visibility.seen_by_all,
             view.solve.demux.unmeasured_pixels
         );
+        let pairs: Vec<String> = view
+            .pair_agreements
+            .iter()
+            .map(|p| format!("r{}c{} {:.1} %", p.row, p.col, 100.0 * p.agreeing))
+            .collect();
+        if !pairs.is_empty() {
+            println!("    maps agree within 1 px with {}", pairs.join(", "));
+        }
     }
     for (stage, seconds) in &field.timings {
         println!("  {stage:<40} {}", format_seconds(*seconds));

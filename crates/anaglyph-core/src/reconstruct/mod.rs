@@ -52,7 +52,8 @@ pub use summary::ViewSummary;
 use crate::disparity::DisparityMap;
 use crate::rectify::Rectification;
 use crate::register::{
-    check_search_range, ArrayGeometry, CommonSignal, SearchRange, Visibility, LOW_AGREEMENT_WARNING,
+    check_search_range, ArrayGeometry, CommonSignal, PairAgreement, SearchRange, Visibility,
+    LOW_AGREEMENT_WARNING,
 };
 use crate::rig::Rig;
 use crate::solve::{SolvePlan, SolveReport, SolveSettings};
@@ -106,6 +107,8 @@ pub struct ReconstructedView {
     /// warped into this view, `height × width × Σ channels` in the order of
     /// [`LightField::channel_labels`], NaN where that camera does not see the point.
     pub registered: Option<Vec<f32>>,
+    /// The view's agreement with each row and column neighbour's map, pixel by pixel.
+    pub pair_agreements: Vec<PairAgreement>,
 }
 
 /// The multispectral light field of an array.

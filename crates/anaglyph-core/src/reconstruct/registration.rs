@@ -10,8 +10,8 @@ use super::{ArrayCaptures, CalibratedArray, PipelineSettings, RunLog, Stage};
 use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
-    register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage, RegistrationMode,
-    SearchRange, COMMON_SIGNALS,
+    pair_agreements, register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage,
+    PairAgreement, RegistrationMode, SearchRange, COMMON_SIGNALS,
 };
 use crate::rig::Rig;
 use crate::stereo::GreyImage;
@@ -28,6 +28,8 @@ pub(super) struct RegisteredArray {
     /// Per camera: the fraction of its disparities a neighbour's map confirms (NaN: none
     /// finite).
     pub agreement: Vec<f64>,
+    /// Per camera: its agreement with each row and column neighbour.
+    pub pair_agreements: Vec<Vec<PairAgreement>>,
 }
 
 pub(super) fn register_array(
@@ -44,13 +46,12 @@ pub(super) fn register_array(
         None => estimate_maps(captures, calibrated, &geometry, settings, log, progress)?,
     };
     let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
-    registered.agreement = neighbour_agreement(
-        &registered.disparities,
-        &positions,
-        &geometry,
-        captures.width,
-        captures.height,
-    );
+    let (w, h) = (captures.width, captures.height);
+    let maps = &registered.disparities;
+    registered.agreement = neighbour_agreement(maps, &positions, &geometry, w, h);
+    registered.pair_agreements = (0..maps.len())
+        .map(|i| pair_agreements(maps, &positions, &geometry, i, w, h))
+        .collect();
     Ok(registered)
 }
 
@@ -113,7 +114,7 @@ fn estimate_maps(
         search_range,
         common_signals: common,
         moved_to_planes: registration.moved_to_planes,
-        agreement: Vec::new(),
+        ..RegisteredArray::default()
     })
 }
 

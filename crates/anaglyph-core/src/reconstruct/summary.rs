@@ -3,7 +3,7 @@
 
 use super::ReconstructedView;
 use crate::demux::DemuxReport;
-use crate::register::Visibility;
+use crate::register::{PairAgreement, Visibility};
 use crate::solve::{DisputedReport, ScenePriorReport};
 use serde::Serialize;
 
@@ -17,6 +17,8 @@ pub struct ViewSummary {
     /// Smallest and largest finite disparity.
     pub disparity_range: [f32; 2],
     pub neighbour_agreement: Option<f64>,
+    /// Agreement with each row and column neighbour's map.
+    pub pair_agreements: Vec<PairAgreement>,
     pub unmeasured_pixels: usize,
     pub median_residual: Option<f64>,
     pub disputed: Option<DisputedReport>,
@@ -34,6 +36,7 @@ impl ReconstructedView {
             demux: self.solve.demux.clone(),
             disparity_range: self.disparity.range(),
             neighbour_agreement: self.neighbour_agreement,
+            pair_agreements: self.pair_agreements.clone(),
             unmeasured_pixels: self.solve.demux.unmeasured_pixels,
             median_residual: self.solve.median_residual,
             disputed: self.solve.disputed,

@@ -134,6 +134,7 @@ impl<'a> ViewPass<'a> {
             solve: solve.report,
             moved_to_planes: self.registered.moved_to_planes.as_ref().map(|m| m[v]),
             registered,
+            pair_agreements: self.registered.pair_agreements[v].clone(),
         })
     }
 }

@@ -12,6 +12,7 @@
 use super::ArrayGeometry;
 use crate::stereo::LEFT_RIGHT_TOLERANCE;
 use rayon::prelude::*;
+use serde::Serialize;
 
 /// Fraction of a view's pixels that its neighbours confirm under which `reconstruct`
 /// warns. Measured on the presets at 640×480 with multi-baseline registration (search
@@ -107,6 +108,56 @@ pub fn neighbour_agreement(
         .collect()
 }
 
+/// How well one view's map agrees with one row or column neighbour's.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PairAgreement {
+    /// The neighbour.
+    pub row: usize,
+    pub col: usize,
+    /// Of the view's pixels with a disparity whose point lies inside the neighbour's frame
+    /// and has a disparity there, the fraction that agree within
+    /// [`LEFT_RIGHT_TOLERANCE`] (NaN: none to compare).
+    pub agreeing: f64,
+    /// How many pixels were compared.
+    pub compared: usize,
+}
+
+/// View `i`'s agreement with each of its row and column neighbours, one by one.
+pub fn pair_agreements(
+    disparities: &[Vec<f32>],
+    positions: &[(usize, usize)],
+    geometry: &ArrayGeometry,
+    i: usize,
+    width: usize,
+    height: usize,
+) -> Vec<PairAgreement> {
+    neighbours(positions, geometry, i)
+        .into_iter()
+        .map(|(j, (sx, sy))| {
+            let (mut agreeing, mut compared) = (0usize, 0usize);
+            for (p, &d) in disparities[i].iter().enumerate() {
+                let (x, y) = ((p % width) as f64, (p / width) as f64);
+                let (xs, ys) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
+                let inside = xs >= 0.0 && ys >= 0.0 && xs < width as f64 && ys < height as f64;
+                if !(d.is_finite() && inside) {
+                    continue;
+                }
+                let other = disparities[j][ys as usize * width + xs as usize];
+                if other.is_finite() {
+                    compared += 1;
+                    agreeing += usize::from((other - d).abs() <= LEFT_RIGHT_TOLERANCE);
+                }
+            }
+            PairAgreement {
+                row: positions[j].0,
+                col: positions[j].1,
+                agreeing: agreeing as f64 / compared as f64,
+                compared,
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -144,6 +195,12 @@ mod tests {
         let agreement = neighbour_agreement(&maps, &positions, &geometry, w, h);
         let expected0 = 1.0 - (9.0 + 20.0) / (w * h) as f64;
         assert!((agreement[0] - expected0).abs() < 1e-12, "{}", agreement[0]);
+        // Pair by pair: the right neighbour compares x ≥ 3 and disagrees on the block.
+        let pairs = pair_agreements(&maps, &positions, &geometry, 0, w, h);
+        assert_eq!(pairs.len(), 2);
+        let right = pairs.iter().find(|p| (p.row, p.col) == (0, 1)).unwrap();
+        assert_eq!(right.compared, (w - 3) * h);
+        assert!((right.agreeing - (1.0 - 20.0 / ((w - 3) * h) as f64)).abs() < 1e-12);
         // Unknown pixels count neither way; a map with none is NaN.
         maps[3] = vec![f32::NAN; w * h];
         assert!(neighbour_agreement(&maps, &positions, &geometry, w, h)[3].is_nan());

@@ -30,7 +30,10 @@ mod pairwise;
 mod search_range;
 mod warp;
 
-pub use agreement::{confirmed_by_neighbours, neighbour_agreement, LOW_AGREEMENT_WARNING};
+pub use agreement::{
+    confirmed_by_neighbours, neighbour_agreement, pair_agreements, PairAgreement,
+    LOW_AGREEMENT_WARNING,
+};
 pub use ambiguous_planes::{
     apply_region_planes, region_planes, resolve_ambiguous_planes, vote_with_neighbours, Ambiguity,
     RegionPlane,
