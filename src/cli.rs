@@ -272,6 +272,10 @@ pub struct SimulateArgs {
     /// truth stays rectified; poses go to DIR/calibration/).
     #[arg(long, value_parser = parse_pose_jitter)]
     pub pose_jitter: Option<(f64, f64)>,
+    /// Fraction of the light lost at the frame corners to lens vignetting (0 to 0.95;
+    /// captures and white boards alike, as real optics do).
+    #[arg(long, default_value_t = 0.0)]
+    pub vignetting: f64,
     /// Vary texture and pattern spectra at fixed colour: AMPLITUDE[,SCALE_MM] (1 = the
     /// full spread of measured spectra of one colour; features of SCALE_MM, default 10).
     /// Without it every colour gets the mean measured spectrum of that colour.

@@ -50,6 +50,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         height: args.size.1,
         supersampling: args.supersampling,
         seed: args.seed,
+        vignetting: args.vignetting,
         ..SimulationSettings::default()
     };
     if args.noise_free {

@@ -110,3 +110,63 @@ fn black_levels_and_dark_frames_are_subtracted_before_calibration() {
         "an offset left in should cost more than 1 dB: clean {clean:.2}, ignored {ignored:.2}"
     );
 }
+
+/// `dir/SIM/rig.toml` without its white boards (its exposures stay), as
+/// `dir/SIM/exposure_only.toml`.
+fn without_white_boards(dir: &Path, sim: &str) -> String {
+    let text = std::fs::read_to_string(dir.join(sim).join("rig.toml")).unwrap();
+    let mut rig = RigFile::from_toml_str(&text, "sim rig").unwrap();
+    for cam in &mut rig.cameras {
+        cam.white = None;
+    }
+    rig.save(&dir.join(sim).join("exposure_only.toml")).unwrap();
+    format!("{sim}/exposure_only.toml")
+}
+
+#[test]
+fn vignetting_is_divided_out_by_the_per_pixel_white_board() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The same scene and seed, once through a lens that loses half the light at the
+    // corners (white boards included): the truth is the same.
+    for (out, vignetting) in [("sim", "0"), ("vignetted", "0.5")] {
+        let args = ["simulate", "--scene", "tabletop", "--size", "128x96"];
+        let o = anaglyph(
+            &[&args[..], &["--vignetting", vignetting, "--out", out]].concat(),
+            d,
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let clean = psnr_of(d, "sim/rig.toml", "rec-clean");
+    let vignetted = psnr_of(d, "vignetted/rig.toml", "rec-vignetted");
+    let exposure_only = psnr_of(d, &without_white_boards(d, "sim"), "rec-exposure");
+    let rig = without_white_boards(d, "vignetted");
+    let vignetted_exposure_only = psnr_of(d, &rig, "rec-vignetted-exposure");
+    eprintln!(
+        "white boards: {clean:.2} dB, vignetted {vignetted:.2} dB; exposure only: \
+         {exposure_only:.2} dB, vignetted {vignetted_exposure_only:.2} dB"
+    );
+    assert!(vignetted > clean - 0.5, "{vignetted} {clean}");
+    assert!(
+        vignetted_exposure_only < exposure_only - 3.0,
+        "{vignetted_exposure_only} {exposure_only}"
+    );
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--vignetting",
+            "1.2",
+            "--out",
+            "bad",
+        ],
+        d,
+    );
+    assert!(
+        !o.status.success() && stderr(&o).contains("vignetting"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!d.join("bad").exists());
+}

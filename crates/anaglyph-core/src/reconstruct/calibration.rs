@@ -74,7 +74,7 @@ fn camera_warnings(record: &CameraCalibration, values: usize) -> Vec<String> {
         .and_then(|cv| cv.iter().cloned().reduce(f64::max));
     if let Some(worst) = worst.filter(|&w| w > UNEVEN_WHITE_WARNING) {
         warnings.push(format!(
-            "camera r{}c{}: white board varies by {:.1} % (uneven light or vignetting; one gain per channel is applied)",
+            "camera r{}c{}: white board varies by {:.1} % across the frame (vignetting or uneven light): divided out pixel by pixel, right for the lens, wrong if the board was lit unlike the scene",
             record.row,
             record.col,
             100.0 * worst

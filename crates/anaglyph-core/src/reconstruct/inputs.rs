@@ -5,12 +5,15 @@
 //! **Calibration.** Exposure differs between cameras and is unknown. With a white-board
 //! capture, channel k of a camera has gain `g_k = mean(white_k) / (ρ_w · Σ_j C[r_k][j])`
 //! (ρ_w the board's reflectance): dividing by it removes exposure and, to first order, the
-//! illuminant, so demultiplexing returns reflectance (the paper's white-board step).
+//! illuminant, so demultiplexing returns reflectance (the paper's white-board step). The
+//! board's smooth shape across the frame (vignetting, uneven light) is divided out pixel by
+//! pixel as well ([`super::flat_field`]).
 //! Without one, the camera's exposure metadata is used (`g_k = exposure`), which needs C
 //! built with the scene's illuminant. Values at or above the saturation level are NaN.
 //! Each camera may also carry its calibrated geometry, for rectification.
 
 use super::dark_level::Dark;
+use super::flat_field::flat_field;
 use crate::image::Image;
 use crate::io::{read_image_header, read_linear_image, ImageHeader, LinearImage};
 use crate::rectify::{Calibration, CameraModel};
@@ -435,6 +438,13 @@ pub fn calibrate(
         let responses: Vec<f64> = (0..ch)
             .map(|c| sensing.row(first_row + c).iter().sum())
             .collect();
+        // The white board's shape across the frame, divided out pixel by pixel.
+        let field = cam.white.as_ref().map(|white| {
+            let means: Vec<f64> = (0..ch)
+                .map(|c| gain[c] * white_reflectance * responses[c])
+                .collect();
+            flat_field(white, &means, saturation_level)
+        });
         let (mut saturated, mut brighter, mut measured) = (0, 0, 0);
         let data: Vec<f32> = cam
             .capture
@@ -445,10 +455,13 @@ pub fn calibrate(
                 if v >= saturation_level {
                     saturated += 1;
                     f32::NAN
-                } else if !v.is_finite() {
-                    f32::NAN // not measured (outside a rectified frame)
+                } else if !v.is_finite() || field.as_ref().is_some_and(|f| f[i].is_nan()) {
+                    // Not measured (outside a rectified frame), or a white board too
+                    // dark here to divide by.
+                    f32::NAN
                 } else {
-                    let value = v as f64 / gain[i % ch];
+                    let shape = field.as_ref().map_or(1.0, |f| f64::from(f[i]));
+                    let value = v as f64 / (gain[i % ch] * shape);
                     measured += 1;
                     brighter += usize::from(value > responses[i % ch]);
                     value as f32

@@ -24,6 +24,7 @@
 mod calibration;
 mod capture_checks;
 mod dark_level;
+mod flat_field;
 mod inputs;
 mod output;
 mod preview;

@@ -38,7 +38,14 @@ pub struct SimulationSettings {
     /// Spectral variation at fixed colour in textures and patterns (None: every colour
     /// gets the mean measured spectrum of that colour).
     pub metamers: Option<MetamerVariation>,
+    /// Fraction of the light lost at the frame's corners to vignetting, falling off as
+    /// `1 − v·(r / r_corner)²` from the image centre; the white board is captured through
+    /// the same optics (0: none).
+    pub vignetting: f64,
 }
+
+/// Largest vignetting the simulator renders (corners at 5 % of the centre).
+pub const MAX_VIGNETTING: f64 = 0.95;
 
 /// Bounds of the random pose error of each camera (uniform in ±bound, seeded). Captures
 /// are taken by the perturbed cameras; the truth stays that of the ideal rectified array.
@@ -62,6 +69,7 @@ impl Default for SimulationSettings {
             white_reflectance: 0.95,
             pose_jitter: None,
             metamers: None,
+            vignetting: 0.0,
         }
     }
 }
@@ -172,6 +180,17 @@ fn band_taps(bands: &SpectralShape) -> Vec<(usize, f64)> {
         .collect()
 }
 
+/// The relative illumination of pixel `i` (row-major) under the settings' vignetting.
+fn vignetting_falloff(settings: &SimulationSettings) -> impl Fn(usize) -> f64 + '_ {
+    let (w, h) = (settings.width, settings.height);
+    let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
+    let corner_sq = (cx * cx + cy * cy).max(f64::MIN_POSITIVE);
+    move |i: usize| {
+        let (x, y) = ((i % w) as f64 - cx, (i / w) as f64 - cy);
+        1.0 - settings.vignetting * (x * x + y * y) / corner_sq
+    }
+}
+
 /// The camera that takes the capture: `camera` moved by the seeded pose jitter (None:
 /// no jitter asked; the capture is taken from the ideal pose).
 fn jittered(
@@ -237,26 +256,32 @@ impl Tracer<'_> {
             .iter()
             .map(|&r| settings.white_reflectance * self.render_c.row(r).iter().sum::<f64>())
             .collect();
-        let whites = white_signal.iter().copied().cycle().take(values);
+        // Both through the same lens: value i belongs to pixel i / channels.
+        let falloff = vignetting_falloff(settings);
+        let clean: Vec<f64> = clean
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| f64::from(v) * falloff(i / channels))
+            .collect();
+        let whites: Vec<f64> = (0..values)
+            .map(|i| white_signal[i % channels] * falloff(i / channels))
+            .collect();
         let Some(noise) = settings.noise else {
             let exposure = 0.9;
             return Exposed {
                 capture: clean
                     .iter()
-                    .map(|&v| (v as f64 * exposure).min(1.0) as f32)
+                    .map(|&v| (v * exposure).min(1.0) as f32)
                     .collect(),
-                white: whites.map(|v| (v * exposure) as f32).collect(),
+                white: whites.iter().map(|v| (v * exposure) as f32).collect(),
                 exposure,
                 saturated: 0,
             };
         };
         let exposure = noise.exposure * (1.0 - settings.exposure_jitter * jitter);
         let camera_noise = CameraNoise { exposure, ..noise };
-        let noisy = camera_noise.apply(
-            &clean.iter().map(|&v| v as f64).collect::<Vec<_>>(),
-            rng.random(),
-        );
-        let white = camera_noise.apply(&whites.collect::<Vec<f64>>(), rng.random());
+        let noisy = camera_noise.apply(&clean, rng.random());
+        let white = camera_noise.apply(&whites, rng.random());
         let to_capture = |v: &[f64]| {
             v.iter()
                 .map(|&p| (p * exposure).clamp(0.0, 1.0) as f32)
@@ -444,6 +469,13 @@ impl Simulation {
         )?;
         let render_c = SensingMatrix::from_responses(&responses, knots, OutOfBand::Extend)?;
         let render_c = embed_in_upsampling_grid(render_c)?;
+        if !(0.0..=MAX_VIGNETTING).contains(&settings.vignetting) {
+            return Err(Error::mismatch(
+                "simulation vignetting",
+                format!("{}", settings.vignetting),
+                format!("a fraction of the light lost at the corners, 0 to {MAX_VIGNETTING}"),
+            ));
+        }
         if let Some(m) = settings.metamers {
             if !(m.amplitude >= 0.0 && m.amplitude.is_finite() && m.scale_mm > 0.0) {
                 return Err(Error::mismatch(
