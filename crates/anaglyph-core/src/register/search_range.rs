@@ -3,8 +3,10 @@
 //! downsampled 2× or 4× over the widest range at which the outermost views still overlap
 //! (signed: a third of it below zero, for arrays calibrated to a plane), and the 2nd and
 //! 98th percentiles of those disparities, scaled back with a margin, become the
-//! full-resolution range. The range starts at 0 unless the coarse disparities reach below
-//! −1 coarse pixel, so an array rectified to infinity is searched from 0 as before.
+//! full-resolution range, from the views inside the array ([`interior_views`]) and only
+//! where another view's map confirms them. The range starts at 0 unless the coarse
+//! disparities reach below −0.5 coarse pixel, so an array rectified to infinity is searched
+//! from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
 use super::{register_views, ArrayGeometry, GridImage, RegistrationSettings};
@@ -21,6 +23,10 @@ use std::time::Instant;
 const COVERED_QUANTILE: f64 = 0.98;
 /// Share of the coarse search range below zero.
 const NEGATIVE_SHARE: usize = 3;
+/// The covered low quantile must lie below minus this many coarse pixels for the range to
+/// reach below 0 (an array rectified to infinity has no negative disparities; coarse noise
+/// around a far background stays within about half a pixel).
+const NEGATIVE_EVIDENCE_PX: f64 = 0.5;
 /// Multiplicative margin on the covered disparity.
 const MARGIN: f64 = 1.1;
 /// Largest coarse search range (disparities at the coarse scale).
@@ -119,7 +125,11 @@ pub fn estimate_search_range(
         },
         &|_, _| {},
     )?;
-    let mut values = agreeing_disparities(&coarse, &registration.disparities, geometry);
+    let interior = interior_views(&coarse, geometry);
+    let mut values: Vec<f32> = interior
+        .iter()
+        .flat_map(|&v| agreeing_disparities(&coarse, &registration.disparities, geometry, v))
+        .collect();
     if values.is_empty() {
         return Err(Error::unusable(
             "the coarse registration",
@@ -132,7 +142,7 @@ pub fn estimate_search_range(
     let f = factor as f64;
     let widest = (w / span).max(4) as i32;
     let max = ((high.max(0.0) * f * MARGIN).ceil() as i32 + 2 * factor as i32).clamp(4, widest);
-    let min = if low < -1.0 {
+    let min = if low < -NEGATIVE_EVIDENCE_PX {
         ((low * f * MARGIN).floor() as i32 - 2 * factor as i32).max(-widest)
     } else {
         0
@@ -150,7 +160,26 @@ pub fn estimate_search_range(
 /// gives the point it matches for the two to agree.
 const AGREEMENT_PX: f32 = 1.0;
 
-/// The finite disparities of `maps` (one per view of `views`) at pixels that their own
+/// The views that have neighbours on both sides along every dimension of the array with
+/// three or more views (all views when there is none). An outer view's pixels near its
+/// outer edge see other views on one side only, and their coarse multi-view costs favour
+/// disparities where fewer, spectrally closer views overlap: on a simulated 3×3
+/// narrow-band array at 800×600, a quarter of every outer view's coarse disparities sat at
+/// 68 coarse px (4×) while the truth spans −2.3 to 2.2, and the range became −19:307
+/// instead of −12:12; the centre view alone gave the right range.
+fn interior_views(views: &[GridImage], geometry: &ArrayGeometry) -> Vec<usize> {
+    let inside = |i: usize, n: usize| n < 3 || (i > 0 && i + 1 < n);
+    let interior: Vec<usize> = (0..views.len())
+        .filter(|&v| inside(views[v].row, geometry.rows) && inside(views[v].col, geometry.cols))
+        .collect();
+    if interior.is_empty() {
+        (0..views.len()).collect()
+    } else {
+        interior
+    }
+}
+
+/// View `v`'s finite disparities of `maps` (one per view of `views`) at pixels that its own
 /// view measures and whose match in some other view is measured there and agrees
 /// (within [`AGREEMENT_PX`]). A pixel without one has only SGM's propagated guess or a
 /// spurious match: on an array registered to a plane by homographies, where the warp
@@ -160,6 +189,7 @@ fn agreeing_disparities(
     views: &[GridImage],
     maps: &[Vec<f32>],
     geometry: &ArrayGeometry,
+    v: usize,
 ) -> Vec<f32> {
     // The disparity view `j` gives at (x, y), if it measures that pixel.
     let at = |j: usize, x: f64, y: f64| {
@@ -175,34 +205,28 @@ fn agreeing_disparities(
             .is_none_or(|m| m[i])
             .then_some(maps[j][i])
     };
-    let mut values = Vec::new();
-    for (v, view) in views.iter().enumerate() {
-        let w = view.image.width;
-        let shifts: Vec<(usize, (f64, f64))> = (0..views.len())
-            .filter(|&j| j != v)
-            .map(|j| {
-                (
-                    j,
-                    geometry.shift((view.row, view.col), (views[j].row, views[j].col)),
-                )
-            })
-            .collect();
-        for (i, &d) in maps[v].iter().enumerate() {
-            let (x, y) = ((i % w) as f64, (i / w) as f64);
-            if !d.is_finite() || at(v, x, y).is_none() {
-                continue;
-            }
-            let agrees = |&(j, (sx, sy)): &(usize, (f64, f64))| {
+    let (row, col, w) = (views[v].row, views[v].col, views[v].image.width);
+    let shifts: Vec<(usize, (f64, f64))> = (0..views.len())
+        .filter(|&j| j != v)
+        .map(|j| (j, geometry.shift((row, col), (views[j].row, views[j].col))))
+        .collect();
+    let agrees = |x: f64, y: f64, d: f32| {
+        shifts.is_empty()
+            || shifts.iter().any(|&(j, (sx, sy))| {
                 let dd = f64::from(d);
                 at(j, x + dd * sx, y + dd * sy)
                     .is_some_and(|other| (other - d).abs() <= AGREEMENT_PX)
-            };
-            if shifts.is_empty() || shifts.iter().any(agrees) {
-                values.push(d);
-            }
-        }
-    }
-    values
+            })
+    };
+    maps[v]
+        .iter()
+        .enumerate()
+        .filter(|&(i, &d)| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            d.is_finite() && at(v, x, y).is_some() && agrees(x, y, d)
+        })
+        .map(|(_, &d)| d)
+        .collect()
 }
 
 #[cfg(test)]
