@@ -319,7 +319,7 @@ fn print_summary(field: &LightField) {
     );
     if let Some(range) = &field.search_range {
         println!(
-            "  search range {} chosen from a {}x coarse registration (96 % of disparities within {:.1} to {:.1} px)",
+            "  search range {} chosen from a {}x coarse registration (confirmed disparities within {:.1} to {:.1} px)",
             range.range, range.factor, range.covered_disparity_px[0], range.covered_disparity_px[1]
         );
     }

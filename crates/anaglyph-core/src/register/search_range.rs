@@ -27,6 +27,8 @@ const NEGATIVE_SHARE: usize = 3;
 /// reach below 0 (an array rectified to infinity has no negative disparities; coarse noise
 /// around a far background stays within about half a pixel).
 const NEGATIVE_EVIDENCE_PX: f64 = 0.5;
+/// The quantile of the coarse disparities that decides whether the range reaches below 0.
+const NEGATIVE_QUANTILE: f64 = 0.005;
 /// Multiplicative margin on the covered disparity.
 const MARGIN: f64 = 1.1;
 /// Largest coarse search range (disparities at the coarse scale).
@@ -41,8 +43,9 @@ pub struct SearchRange {
     pub factor: usize,
     /// Coarse range searched (coarse pixels).
     pub coarse_range: DisparityRange,
-    /// The covered quantiles (low, high) of the coarse disparities, in full-resolution
-    /// pixels.
+    /// The covered quantiles of the confirmed coarse disparities, in full-resolution
+    /// pixels: low (the 2nd percentile, or the 0.5th when that reaches further below 0)
+    /// and high (the 98th).
     pub covered_disparity_px: [f64; 2],
     pub seconds: f64,
 }
@@ -139,6 +142,8 @@ pub fn estimate_search_range(
     values.sort_by(f32::total_cmp);
     let quantile = |q: f64| values[((values.len() - 1) as f64 * q) as usize] as f64;
     let (low, high) = (quantile(1.0 - COVERED_QUANTILE), quantile(COVERED_QUANTILE));
+    // Points beyond a calibration plane may be few: the sign is decided further out.
+    let low = low.min(quantile(NEGATIVE_QUANTILE));
     let f = factor as f64;
     let widest = (w / span).max(4) as i32;
     let max = ((high.max(0.0) * f * MARGIN).ceil() as i32 + 2 * factor as i32).clamp(4, widest);
@@ -210,13 +215,13 @@ fn agreeing_disparities(
         .filter(|&j| j != v)
         .map(|j| (j, geometry.shift((row, col), (views[j].row, views[j].col))))
         .collect();
+    let needed = shifts.len().min(2);
     let agrees = |x: f64, y: f64, d: f32| {
-        shifts.is_empty()
-            || shifts.iter().any(|&(j, (sx, sy))| {
-                let dd = f64::from(d);
-                at(j, x + dd * sx, y + dd * sy)
-                    .is_some_and(|other| (other - d).abs() <= AGREEMENT_PX)
-            })
+        let dd = f64::from(d);
+        let agreeing = shifts.iter().filter(|&&(j, (sx, sy))| {
+            at(j, x + dd * sx, y + dd * sy).is_some_and(|other| (other - d).abs() <= AGREEMENT_PX)
+        });
+        agreeing.count() >= needed
     };
     maps[v]
         .iter()
