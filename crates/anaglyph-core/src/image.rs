@@ -73,6 +73,21 @@ impl<T: Copy> Image<T> {
     }
 }
 
+/// A `width × height` plane of values blurred by a Gaussian of `sigma` pixels
+/// (`image::imageops::blur`); returned as it is if the sizes do not match.
+pub fn gaussian_blur_plane(width: usize, height: usize, values: Vec<f32>, sigma: f32) -> Vec<f32> {
+    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
+        width as u32,
+        height as u32,
+        values,
+    );
+    match buffer {
+        Some(buffer) if sigma > 0.0 => image::imageops::blur(&buffer, sigma).into_raw(),
+        Some(buffer) => buffer.into_raw(),
+        None => Vec::new(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,6 +4,7 @@
 //! true corners give.
 
 use anaglyph_core::capture::CameraNoise;
+use anaglyph_core::io::LinearImage;
 use anaglyph_core::plane_calibration::{
     calibrate_to_plane, detect_board, BoardCapture, BoardPattern, PlaneModel,
 };
@@ -11,7 +12,6 @@ use anaglyph_core::rectify::Homography;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile, Shape, Vec3};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
-use anaglyph_core::stereo::GreyImage;
 use std::path::Path;
 
 const WIDTH: usize = 320;
@@ -85,19 +85,9 @@ fn board_captures(simulation: &Simulation) -> Vec<BoardCapture> {
     simulation
         .views
         .iter()
-        .map(|v| BoardCapture {
-            row: v.row,
-            col: v.col,
-            image: GreyImage {
-                channels: 1,
-                width: WIDTH,
-                height: HEIGHT,
-                data: v
-                    .capture
-                    .chunks_exact(v.channels)
-                    .map(|p| p.iter().sum::<f32>() / v.channels as f32)
-                    .collect(),
-            },
+        .map(|v| {
+            let capture = LinearImage::new(WIDTH, HEIGHT, v.channels, v.capture.clone()).unwrap();
+            BoardCapture::from_capture(v.row, v.col, &capture)
         })
         .collect()
 }

@@ -10,6 +10,7 @@
 //! the camera and the pattern.
 
 use super::BoardPattern;
+use crate::image::gaussian_blur_plane;
 use crate::stereo::GreyImage;
 use crate::{Error, Result};
 use calib_targets_chessboard::{
@@ -85,7 +86,7 @@ fn in_board_order(
 }
 
 /// `image` between its 1st and 99th percentiles, as 8 bits.
-fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
+pub(super) fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
     let mut sorted: Vec<f32> = image
         .data
         .iter()
@@ -103,21 +104,12 @@ fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
         .collect()
 }
 
-/// `image` blurred by a Gaussian of `sigma` pixels (`image::imageops::blur`).
+/// `image` blurred by a Gaussian of `sigma` pixels.
 fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
-    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
-        image.width as u32,
-        image.height as u32,
-        image.data.clone(),
-    );
-    let data = match buffer {
-        Some(buffer) => image::imageops::blur(&buffer, sigma).into_raw(),
-        None => image.data.clone(),
-    };
     GreyImage {
         channels: 1,
         width: image.width,
         height: image.height,
-        data,
+        data: gaussian_blur_plane(image.width, image.height, image.data.clone(), sigma),
     }
 }

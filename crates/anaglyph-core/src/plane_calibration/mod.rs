@@ -20,7 +20,7 @@ mod output;
 pub use board::{detect_board, DETECTION_BLUR};
 pub use output::write_plane_calibration;
 
-use crate::io::{read_image_header, read_linear_image};
+use crate::io::{read_image_header, read_linear_image, LinearImage};
 use crate::reconstruct::{find_in, PICTURE_EXTENSIONS};
 use crate::rectify::Homography;
 use crate::rig::Rig;
@@ -84,6 +84,28 @@ pub struct BoardCapture {
     pub row: usize,
     pub col: usize,
     pub image: GreyImage,
+}
+
+impl BoardCapture {
+    /// Camera (row, col)'s capture as grey: the mean of its channels.
+    pub fn from_capture(row: usize, col: usize, capture: &LinearImage) -> Self {
+        let channels = capture.channels.max(1);
+        let data = capture
+            .data
+            .chunks_exact(channels)
+            .map(|p| p.iter().sum::<f32>() / channels as f32)
+            .collect();
+        BoardCapture {
+            row,
+            col,
+            image: GreyImage {
+                channels: 1,
+                width: capture.width,
+                height: capture.height,
+                data,
+            },
+        }
+    }
 }
 
 /// One camera's fitted map and how well it fits.
@@ -150,23 +172,11 @@ pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
         .iter()
         .zip(&paths)
         .map(|(cam, path)| {
-            let image = read_linear_image(path)?;
-            let channels = image.channels.max(1);
-            let data = image
-                .data
-                .chunks_exact(channels)
-                .map(|p| p.iter().sum::<f32>() / channels as f32)
-                .collect();
-            Ok(BoardCapture {
-                row: cam.row,
-                col: cam.col,
-                image: GreyImage {
-                    channels: 1,
-                    width: image.width,
-                    height: image.height,
-                    data,
-                },
-            })
+            Ok(BoardCapture::from_capture(
+                cam.row,
+                cam.col,
+                &read_linear_image(path)?,
+            ))
         })
         .collect()
 }

@@ -12,6 +12,7 @@
 //! In: a [`PlaneCalibration`] and the captures it came from. Out: the files above, written
 //! into an [`OutputFolder`] (the caller commits it).
 
+use super::board::stretched_8bit;
 use super::{BoardCapture, PlaneCalibration};
 use crate::io::{write_atomically, OutputFolder};
 use crate::{Error, Result};
@@ -56,20 +57,12 @@ pub fn write_plane_calibration(
     folder.write_manifest(calibration)
 }
 
-/// The capture (stretched to 8 bits) with a red cross on every corner, green on the first.
+/// The capture (stretched to 8 bits as the detector saw it, without the blur) with a red cross on every corner, green on the first.
 fn write_corner_picture(path: &Path, capture: &BoardCapture, corners: &[[f64; 2]]) -> Result<()> {
     let image = &capture.image;
-    let (lo, hi) = image
-        .data
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
-    let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
+    let grey = stretched_8bit(image);
     let mut picture = image::RgbImage::from_fn(image.width as u32, image.height as u32, |x, y| {
-        let v = image.data[y as usize * image.width + x as usize];
-        let g = ((v - lo) * scale).clamp(0.0, 255.0) as u8;
+        let g = grey[y as usize * image.width + x as usize];
         image::Rgb([g, g, g])
     });
     for (k, c) in corners.iter().enumerate() {

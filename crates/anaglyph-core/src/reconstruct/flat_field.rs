@@ -7,8 +7,8 @@
 //! Gaussian of [`smoothing_sigma`] with saturated pixels left out (normalised
 //! convolution), so that the board's own noise is not divided into the scene.
 
+use crate::image::gaussian_blur_plane;
 use crate::io::LinearImage;
-use image::{ImageBuffer, Luma};
 
 /// Smallest relative value kept: a white board darker than this fraction of its mean
 /// (a corner lost to vignetting) leaves the pixel unmeasured.
@@ -30,7 +30,7 @@ pub fn flat_field(white: &LinearImage, means: &[f64], saturation: f32) -> Vec<f3
     let mut field = vec![f32::NAN; w * h * ch];
     for c in 0..ch {
         let usable = |v: f32| v.is_finite() && v < saturation;
-        let plane = |f: &dyn Fn(f32) -> f32| -> ImageBuffer<Luma<f32>, Vec<f32>> {
+        let plane = |f: &dyn Fn(f32) -> f32| {
             let data = white
                 .data
                 .iter()
@@ -38,12 +38,12 @@ pub fn flat_field(white: &LinearImage, means: &[f64], saturation: f32) -> Vec<f3
                 .step_by(ch)
                 .map(|&v| f(v))
                 .collect();
-            ImageBuffer::from_raw(w as u32, h as u32, data).unwrap_or_default()
+            gaussian_blur_plane(w, h, data, sigma)
         };
-        let values = image::imageops::blur(&plane(&|v| if usable(v) { v } else { 0.0 }), sigma);
-        let weights = image::imageops::blur(&plane(&|v| f32::from(u8::from(usable(v)))), sigma);
+        let values = plane(&|v| if usable(v) { v } else { 0.0 });
+        let weights = plane(&|v| f32::from(u8::from(usable(v))));
         let mean = means[c] as f32;
-        for (i, (v, k)) in values.as_raw().iter().zip(weights.as_raw()).enumerate() {
+        for (i, (v, k)) in values.iter().zip(&weights).enumerate() {
             let relative = v / k / mean;
             if *k > 1e-3 && relative >= MIN_FLAT_FIELD {
                 field[i * ch + c] = relative;

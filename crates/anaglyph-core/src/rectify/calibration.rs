@@ -25,7 +25,7 @@ impl Calibration {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
         {
-            return Homography::load(path).map(Calibration::Plane);
+            return Homography::read_npy(path).map(Calibration::Plane);
         }
         let storage = read_file_storage(path)?;
         let context = path.display().to_string();

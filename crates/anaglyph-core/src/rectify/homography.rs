@@ -7,7 +7,7 @@
 //! plain `homography` / `affine` array of rows, or `.npy`; or point pairs to fit one to
 //! (normalised DLT). Out: a checked [`Homography`] that rectification resamples with.
 
-use super::file_storage::{read_file_storage, StoredValue};
+use super::file_storage::StoredValue;
 use crate::{Error, Result};
 use faer::linalg::solvers::Solve;
 use std::path::Path;
@@ -67,42 +67,25 @@ impl Homography {
         Self::new(&full, context)
     }
 
-    /// Reads a homography file: OpenCV FileStorage (`.json`, `.yml`, `.yaml`) with a
-    /// `homography` (3×3) or `affine` (2×3) matrix, or `.npy` holding 3×3 or 2×3 values.
-    pub fn load(path: &Path) -> Result<Self> {
+    /// Reads a `.npy` file of 3×3 (homography) or 2×3 (affine) values.
+    pub fn read_npy(path: &Path) -> Result<Self> {
         let context = path.display().to_string();
-        if path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
-        {
-            let array: ndarray::ArrayD<f64> =
-                ndarray_npy::read_npy(path).map_err(|e| Error::Decode {
-                    file: path.to_path_buf(),
-                    message: e.to_string(),
-                })?;
-            let values: Vec<f64> = array.iter().copied().collect();
-            return match array.shape() {
-                [3, 3] => Self::new(&values, &context),
-                [2, 3] => Self::from_affine(&values, &context),
-                shape => Err(Error::bad_field(
-                    &context,
-                    "array",
-                    format!("shape {shape:?}"),
-                    "3x3 (homography) or 2x3 (affine)",
-                )),
-            };
+        let array: ndarray::ArrayD<f64> =
+            ndarray_npy::read_npy(path).map_err(|e| Error::Decode {
+                file: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        let values: Vec<f64> = array.iter().copied().collect();
+        match array.shape() {
+            [3, 3] => Self::new(&values, &context),
+            [2, 3] => Self::from_affine(&values, &context),
+            shape => Err(Error::bad_field(
+                &context,
+                "array",
+                format!("shape {shape:?}"),
+                "3x3 (homography) or 2x3 (affine)",
+            )),
         }
-        let storage = read_file_storage(path)?;
-        Self::from_stored(storage.get("homography"), storage.get("affine"), &context)?.ok_or_else(
-            || {
-                Error::bad_field(
-                    &context,
-                    "homography",
-                    "absent".to_string(),
-                    "a 3x3 `homography` or 2x3 `affine` matrix",
-                )
-            },
-        )
     }
 
     /// The map of a FileStorage file's `homography` or `affine` entry (None: neither).
