@@ -5,6 +5,7 @@
 //!
 //! ```text
 //! spectrum (curves) + filters + rig -> sensing matrix C -> capture (forward model, noise)
+//! checkerboard captures -> plane_calibration (homographies onto the reference camera)
 //! scene -> simulate -> captures -> rectify -> stereo -> register (disparity per view, warp)
 //!   -> solve (per view: demux's Eq. 6, then the stages that repair what registration
 //!      got wrong) -> refine (guided by each view's own capture)
