@@ -14,6 +14,13 @@ pub const GAUSSIAN_PREFIX: &str = "gaussian:";
 /// The wavelengths a nominal curve covers, nm (every sensor curve lies inside).
 pub const NOMINAL_RANGE_NM: (f64, f64) = (200.0, 1200.0);
 
+/// The centre (nm) of a nominal filter reference `gaussian:CENTRE_NM:…`; None for any
+/// other reference.
+pub fn nominal_centre(reference: &str) -> Option<f64> {
+    let spec = reference.strip_prefix(GAUSSIAN_PREFIX)?;
+    spec.split(':').next()?.trim().parse().ok()
+}
+
 /// The Gaussian transmission `peak · exp(−4 ln 2 (λ − centre)² / fwhm²)` described by
 /// `spec` = `CENTRE:FWHM[:PEAK]` (nm, nm, fraction).
 pub fn gaussian_filter(spec: &str) -> Result<ResponseCurve> {

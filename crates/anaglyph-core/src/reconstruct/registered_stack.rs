@@ -8,7 +8,7 @@
 //! number of cameras that see each pixel (black: none, white: all).
 
 use super::LightField;
-use crate::filters::GAUSSIAN_PREFIX;
+use crate::filters::nominal_centre;
 use crate::image::Image;
 use crate::io::{write_envi, EnviCube};
 use crate::rig::Rig;
@@ -80,8 +80,7 @@ fn seen_counts(stack: &Image<f32>, firsts: &[usize]) -> Result<image::GrayImage>
 fn nominal_centres(rig: &Rig) -> Option<Vec<f64>> {
     let mut centres = Vec::new();
     for cam in &rig.cameras {
-        let spec = cam.filter.name().strip_prefix(GAUSSIAN_PREFIX)?;
-        let centre: f64 = spec.split(':').next()?.parse().ok()?;
+        let centre = nominal_centre(cam.filter.name())?;
         centres.extend(std::iter::repeat_n(
             centre,
             cam.sensor.channel_names().len(),

@@ -166,6 +166,18 @@ fn fit_grid(positions: &[(usize, usize, [f64; 3])]) -> Result<[[f64; 3]; 3]> {
     Ok([origin, u.unwrap_or([0.0; 3]), v.unwrap_or([0.0; 3])])
 }
 
+/// At least one camera, of at least 2×2 pixels.
+fn check_array_size(cameras: usize, width: usize, height: usize) -> Result<()> {
+    if cameras == 0 || width < 2 || height < 2 {
+        return Err(Error::mismatch(
+            "rectification",
+            format!("{cameras} cameras of {width}x{height} px"),
+            "at least one camera of at least 2x2 px",
+        ));
+    }
+    Ok(())
+}
+
 impl Rectification {
     /// Plans the rectification of cameras given as (row, col, model), all of `width ×
     /// height` pixels.
@@ -174,13 +186,7 @@ impl Rectification {
         width: usize,
         height: usize,
     ) -> Result<Self> {
-        if cameras.is_empty() || width < 2 || height < 2 {
-            return Err(Error::mismatch(
-                "rectification",
-                format!("{} cameras of {width}x{height} px", cameras.len()),
-                "at least one camera of at least 2x2 px",
-            ));
-        }
+        check_array_size(cameras.len(), width, height)?;
         for (r, c, model) in &cameras {
             if let Some((w, h)) = model.image_size {
                 if (w, h) != (width, height) {
@@ -270,13 +276,7 @@ impl Rectification {
         width: usize,
         height: usize,
     ) -> Result<Self> {
-        if cameras.is_empty() || width < 2 || height < 2 {
-            return Err(Error::mismatch(
-                "rectification",
-                format!("{} cameras of {width}x{height} px", cameras.len()),
-                "at least one camera of at least 2x2 px",
-            ));
-        }
+        check_array_size(cameras.len(), width, height)?;
         for (r, c, h) in &cameras {
             h.check_frame(width, height, &format!("homography of camera r{r}c{c}"))?;
         }

@@ -41,6 +41,24 @@ pub(super) fn neighbours(
     .collect()
 }
 
+/// The value of `map` (a neighbour's, `width × height`) at the pixel nearest to where the
+/// point of pixel (x, y) at disparity `d` lands (`shift` per unit disparity); None
+/// outside the frame.
+fn at_match(
+    map: &[f32],
+    (width, height): (usize, usize),
+    (x, y): (f64, f64),
+    d: f32,
+    shift: (f64, f64),
+) -> Option<f32> {
+    let (xs, ys) = (
+        (x + shift.0 * d as f64).round(),
+        (y + shift.1 * d as f64).round(),
+    );
+    let inside = xs >= 0.0 && ys >= 0.0 && xs < width as f64 && ys < height as f64;
+    inside.then(|| map[ys as usize * width + xs as usize])
+}
+
 /// View `i`'s map with NaN wherever no row or column neighbour's map agrees within
 /// [`LEFT_RIGHT_TOLERANCE`] at the corresponding pixel. A view without neighbours is
 /// returned as it is.
@@ -64,14 +82,9 @@ pub fn confirmed_by_neighbours(
                 return f32::NAN;
             }
             let (x, y) = ((p % width) as f64, (p / width) as f64);
-            let confirmed = neighbours.iter().any(|&(j, (sx, sy))| {
-                let (xs, ys) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
-                xs >= 0.0
-                    && ys >= 0.0
-                    && xs < width as f64
-                    && ys < height as f64
-                    && (disparities[j][ys as usize * width + xs as usize] - d).abs()
-                        <= LEFT_RIGHT_TOLERANCE
+            let confirmed = neighbours.iter().any(|&(j, shift)| {
+                at_match(&disparities[j], (width, height), (x, y), d, shift)
+                    .is_some_and(|other| (other - d).abs() <= LEFT_RIGHT_TOLERANCE)
             });
             if confirmed {
                 d
@@ -133,17 +146,15 @@ pub fn pair_agreements(
 ) -> Vec<PairAgreement> {
     neighbours(positions, geometry, i)
         .into_iter()
-        .map(|(j, (sx, sy))| {
+        .map(|(j, shift)| {
             let (mut agreeing, mut compared) = (0usize, 0usize);
             for (p, &d) in disparities[i].iter().enumerate() {
-                let (x, y) = ((p % width) as f64, (p / width) as f64);
-                let (xs, ys) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
-                let inside = xs >= 0.0 && ys >= 0.0 && xs < width as f64 && ys < height as f64;
-                if !(d.is_finite() && inside) {
+                let xy = ((p % width) as f64, (p / width) as f64);
+                if !d.is_finite() {
                     continue;
                 }
-                let other = disparities[j][ys as usize * width + xs as usize];
-                if other.is_finite() {
+                let other = at_match(&disparities[j], (width, height), xy, d, shift);
+                if let Some(other) = other.filter(|o| o.is_finite()) {
                     compared += 1;
                     agreeing += usize::from((other - d).abs() <= LEFT_RIGHT_TOLERANCE);
                 }
