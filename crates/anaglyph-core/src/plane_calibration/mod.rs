@@ -212,10 +212,13 @@ pub fn calibrate_to_plane(
             name: format!("r{}c{}", reference.0, reference.1),
             available: "the rig's cameras".into(),
         })?;
-    let corners: Vec<Vec<[f64; 2]>> = captures
+    // Detected in parallel, reported in rig order: the first camera without a board is
+    // the one named, whichever thread finishes first.
+    let detections: Vec<Result<Vec<[f64; 2]>>> = captures
         .par_iter()
         .map(|c| detect_board(&c.image, pattern, &format!("r{}c{}", c.row, c.col)))
-        .collect::<Result<_>>()?;
+        .collect();
+    let corners: Vec<Vec<[f64; 2]>> = detections.into_iter().collect::<Result<_>>()?;
     let target = &corners[reference_index];
     let cameras = captures
         .iter()
