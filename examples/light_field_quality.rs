@@ -24,7 +24,7 @@ use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
 };
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
-use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, PRESETS};
+use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, TEST_SCENES};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
 use anaglyph_core::solve::{
     ScenePriorSettings, SolveSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR,
@@ -47,7 +47,7 @@ fn main() -> anyhow::Result<()> {
     );
     let presets: Vec<String> = match std::env::var("ANAGLYPH_PRESETS") {
         Ok(list) => list.split(',').map(str::to_string).collect(),
-        Err(_) => PRESETS.iter().map(|(k, _)| k.to_string()).collect(),
+        Err(_) => TEST_SCENES.iter().map(|k| k.to_string()).collect(),
     };
     let modes: Vec<String> = match std::env::var("ANAGLYPH_MODES") {
         Ok(list) => list.split(',').map(str::to_string).collect(),
@@ -298,9 +298,8 @@ fn print_bad2(field: &LightField, truth_maps: &[Vec<f32>]) {
                 (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
             });
         eprint!(
-            " r{}c{} bad-2 {:.1} %",
-            view.row,
-            view.col,
+            " {} bad-2 {:.1} %",
+            view.name,
             100.0 * bad as f64 / total.max(1) as f64
         );
     }
@@ -325,7 +324,6 @@ fn print_scores(
     geometry: &ArrayGeometry,
 ) -> anyhow::Result<()> {
     let (width, height) = (simulation.settings.width, simulation.settings.height);
-    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
     let nb = field.bands.len();
     let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
     let mut reference = None;
@@ -335,7 +333,7 @@ fn print_scores(
         psnr_sum += all.psnr;
         ssim_sum += all.ssim;
         if i == 0 {
-            let mask = seen_by_all_views(truth_maps, &positions, 0, geometry, width, height);
+            let mask = seen_by_all_views(truth_maps, geometry, 0, width, height);
             let seen = score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
             reference = Some((all, seen));
         }

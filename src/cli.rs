@@ -250,12 +250,14 @@ fn parse_size(text: &str) -> Result<(usize, usize), String> {
 
 #[derive(Debug, clap::Args)]
 pub struct SimulateArgs {
-    /// A preset (tabletop, clutter, periodic), `random` (seeded by --seed) or a scene TOML file.
+    /// A preset (tabletop, clutter, periodic, checkerboard), `random` (seeded by --seed) or
+    /// a scene TOML file.
     #[arg(long)]
     pub scene: String,
-    /// The rig (default: the paper's 2×4 rig with the selected gels).
-    #[arg(long)]
-    pub rig: Option<PathBuf>,
+    /// A rig file, or a preset: paper-2x4 (the paper's rig with the selected gels),
+    /// mono-3x3 or hexagon-7 (narrow-band monochrome arrays, data/rigs/).
+    #[arg(long, default_value = "paper-2x4")]
+    pub rig: String,
     /// Image size.
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub size: (usize, usize),
@@ -438,27 +440,20 @@ pub struct CalibrateArgs {
     /// Rig file (TOML): which cameras there are.
     #[arg(long)]
     pub rig: PathBuf,
-    /// Output folder: r{row}c{col}.json (OpenCV FileStorage `homography`), corners/,
+    /// Output folder: <camera>.json (OpenCV FileStorage `homography`), corners/,
     /// manifest.json with residuals; give it to `reconstruct --calibration`.
     #[arg(long)]
     pub out: PathBuf,
-    /// The camera the array is registered to.
-    #[arg(long, default_value = "r0c0", value_parser = parse_camera)]
-    pub reference: (usize, usize),
+    /// The camera the array is registered to, by name [default: the rig's camera with
+    /// `reference = true`, else its first camera].
+    #[arg(long)]
+    pub reference: Option<String>,
     /// Fit affine maps (6 parameters) instead of homographies (8).
     #[arg(long)]
     pub affine: bool,
     /// Replace the output folder even if anaglyph did not write it.
     #[arg(long)]
     pub force: bool,
-}
-
-/// A camera named `r<row>c<col>`.
-fn parse_camera(text: &str) -> Result<(usize, usize), String> {
-    match parse_views(text)? {
-        ViewList::Some(list) if list.len() == 1 => Ok(list[0]),
-        _ => Err(format!("'{text}': expected one camera, e.g. r1c1")),
-    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -579,11 +574,11 @@ pub enum WarpKernelChoice {
     Bilinear,
 }
 
-/// Views of the array: `all` or a list like `r0c0,r1c2`.
+/// Views of the array: `all` or a list of camera names like `r0c0,r1c2`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ViewList {
     All,
-    Some(Vec<(usize, usize)>),
+    Some(Vec<String>),
 }
 
 /// `--disp-range` / `--max-disp`: a range of disparities or `auto`.
@@ -654,15 +649,11 @@ fn parse_views(text: &str) -> Result<ViewList, String> {
         return Ok(ViewList::All);
     }
     text.split(',')
-        .map(|item| {
-            let item = item.trim();
-            let bad = || format!("'{item}': expected r<row>c<col>, e.g. r0c1");
-            let rest = item.strip_prefix('r').ok_or_else(bad)?;
-            let (row, col) = rest.split_once('c').ok_or_else(bad)?;
-            Ok((
-                row.parse().map_err(|_| bad())?,
-                col.parse().map_err(|_| bad())?,
-            ))
+        .map(|item| match item.trim() {
+            "" => Err(format!(
+                "'{text}': expected camera names separated by commas, e.g. r0c1,r1c1"
+            )),
+            name => Ok(name.to_string()),
         })
         .collect::<Result<Vec<_>, String>>()
         .map(ViewList::Some)

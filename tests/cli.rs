@@ -9,6 +9,8 @@ use std::process::{Command, Output};
 
 #[path = "cli/bad_input.rs"]
 mod bad_input;
+#[path = "cli/hexagonal.rs"]
+mod hexagonal;
 #[path = "cli/plane_registered.rs"]
 mod plane_registered;
 #[path = "cli/real_sensor.rs"]
@@ -44,6 +46,18 @@ fn eval_psnr(dir: &Path, recon: &str) -> f64 {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join(&json)).unwrap()).unwrap();
     report["mean_psnr"].as_f64().unwrap()
+}
+
+/// Writes `dir/mono.csv`, a panchromatic monochrome sensor curve: the sum of the Canon's
+/// three channels.
+fn write_monochrome_sensor(dir: &Path) {
+    let canon = std::fs::read_to_string("data/spectra/sensors/canon_eos_5d_mark_ii.csv").unwrap();
+    let mut mono = String::from("wavelength_nm,mono\n");
+    for line in canon.lines().skip(1) {
+        let v: Vec<f64> = line.split(',').map(|s| s.parse().unwrap()).collect();
+        mono.push_str(&format!("{},{}\n", v[0], v[1] + v[2] + v[3]));
+    }
+    std::fs::write(dir.join("mono.csv"), mono).unwrap();
 }
 
 /// A failed run: non-zero exit, an "error:" line, no panic.
@@ -886,8 +900,11 @@ fn reconstruct_rejects_missing_or_mismatched_captures_cleanly() {
         anaglyph(&refs, d)
     };
     assert_clean_failure(&run(with(&["--captures", "empty"])), "no capture r0c0");
-    assert_clean_failure(&run(with(&["--views", "r4c0"])), "not in the 2x4 rig");
-    assert_clean_failure(&run(with(&["--views", "row0"])), "expected r<row>c<col>");
+    assert_clean_failure(
+        &run(with(&["--views", "r4c0"])),
+        "no camera 'r4c0' (available: r0c0, r0c1,",
+    );
+    assert_clean_failure(&run(with(&["--views", "r0c0,,r0c1"])), "camera names");
     assert_clean_failure(
         &anaglyph(
             &[

@@ -8,20 +8,21 @@ use anaglyph_core::plane_calibration::{
     calibrate_to_plane, load_board_captures, write_plane_calibration, PlaneModel,
 };
 use anaglyph_core::rig::Rig;
+use anyhow::Context;
 use std::time::Instant;
 
 pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let rig = Rig::load(&args.rig)?;
-    let reference = args.reference;
-    if !rig.cameras.iter().any(|c| (c.row, c.col) == reference) {
-        anyhow::bail!(
-            "--reference r{}c{}: not a camera of the rig {}",
-            reference.0,
-            reference.1,
-            args.rig.display()
-        );
-    }
+    let reference = match &args.reference {
+        Some(name) => {
+            let index = rig
+                .camera_index(name)
+                .with_context(|| format!("--reference {name}: {}", args.rig.display()))?;
+            rig.cameras[index].name.clone()
+        }
+        None => rig.cameras[rig.reference].name.clone(),
+    };
     let folder = begin_output(&args.out, args.force, &[&args.images, &args.rig])?;
     let captures = load_board_captures(&rig, &args.images)?;
     let model = if args.affine {
@@ -29,21 +30,19 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     } else {
         PlaneModel::Homography
     };
-    let calibration = calibrate_to_plane(&captures, args.checkerboard, reference, model)?;
+    let calibration = calibrate_to_plane(&captures, args.checkerboard, &reference, model)?;
     let count = write_plane_calibration(&folder, &calibration, &captures)?;
     let out = folder.commit()?;
     println!(
-        "{} cameras calibrated to the plane of a {} checkerboard (reference r{}c{}) in {}:",
+        "{} cameras calibrated to the plane of a {} checkerboard (reference {reference}) in {}:",
         calibration.cameras.len(),
         calibration.pattern,
-        reference.0,
-        reference.1,
         format_seconds(calibration.seconds)
     );
     for fit in &calibration.cameras {
         println!(
-            "  r{}c{}: residual {:.3} px RMS, {:.3} px largest",
-            fit.row, fit.col, fit.residual_rms_px, fit.residual_max_px
+            "  {}: residual {:.3} px RMS, {:.3} px largest",
+            fit.name, fit.residual_rms_px, fit.residual_max_px
         );
     }
     println!(

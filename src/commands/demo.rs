@@ -92,9 +92,11 @@ fn stereo_on_neighbours(
     for cost in &costs {
         let (mut bad, mut total, mut seconds, mut pairs) = (0usize, 0usize, 0.0, 0);
         for left in views {
+            let [x, y] = left.position_mm;
             let Some(right) = views
                 .iter()
-                .find(|v| v.row == left.row && v.col == left.col + 1)
+                .filter(|v| v.position_mm[1] == y && v.position_mm[0] > x)
+                .min_by(|a, b| a.position_mm[0].total_cmp(&b.position_mm[0]))
             else {
                 continue;
             };
@@ -555,7 +557,7 @@ fn light_fields(
     let (width, height) = args.size;
     println!(
         "\n7. Light fields: the {} preset scenes through this rig at {width}×{height}, every view reconstructed",
-        anaglyph_core::scene::PRESETS.len()
+        anaglyph_core::scene::TEST_SCENES.len()
     );
     println!("   from the captures (learned multi-view registration) and with the true disparities (the ceiling),");
     println!(

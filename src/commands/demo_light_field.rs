@@ -14,7 +14,7 @@ use anaglyph_core::register::{
     ArrayGeometry, RegistrationMode, RegistrationSettings, DEFAULT_REGISTRATION,
 };
 use anaglyph_core::rig::Rig;
-use anaglyph_core::scene::{Scene, SceneFile, PRESETS};
+use anaglyph_core::scene::{Scene, SceneFile, TEST_SCENES};
 use anaglyph_core::simulate::{write_simulation, Simulation, SimulationSettings};
 use anaglyph_core::stereo::{DisparityRange, MatchingCost, MatchingNetwork};
 use serde::Serialize;
@@ -77,12 +77,11 @@ fn scores(
         .iter()
         .map(|v| v.disparity.clone())
         .collect();
-    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
     let mut all = Vec::new();
     for (view, truth) in field.views.iter().zip(&simulation.views) {
         all.push(score_cube(&truth.truth, &view.reflectance, w, h, nb, None)?);
     }
-    let mask = seen_by_all_views(&maps, &positions, 0, geometry, w, h);
+    let mask = seen_by_all_views(&maps, geometry, 0, w, h);
     let seen = score_cube(
         &simulation.views[0].truth,
         &field.views[0].reflectance,
@@ -123,7 +122,7 @@ pub fn run_presets(
     let network = MatchingNetwork::default_fast()?;
     let mut results = Vec::new();
     let mut tabletop = None;
-    for (name, _) in PRESETS {
+    for name in TEST_SCENES {
         let scene_file = SceneFile::preset(name)?;
         let scene = Scene::resolve(scene_file.clone(), Path::new("."))?;
         let settings = SimulationSettings {
@@ -218,7 +217,7 @@ pub fn run_presets(
             true_disparity,
             reference_bad2: 100.0 * bad.0 as f64 / bad.1.max(1) as f64,
         });
-        if *name == "tabletop" {
+        if name == "tabletop" {
             tabletop = Some(simulation);
         }
     }

@@ -19,8 +19,7 @@ const BANDS_PER_LINE: usize = 8;
 
 #[derive(Serialize)]
 struct ViewScores {
-    row: usize,
-    col: usize,
+    name: String,
     all_pixels: BandScores,
     seen_by_all: BandScores,
     /// Fraction of pixels with a reconstruction.
@@ -58,20 +57,21 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
     verify_output_folder(recon).with_context(|| whole(recon))?;
     let rig = Rig::load(&truth.join("rig.toml"))?;
     let geometry = ArrayGeometry::of_rig(&rig);
-    let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
-    let maps: Vec<_> = positions
+    let maps: Vec<_> = rig
+        .cameras
         .iter()
-        .map(|(r, c)| read_pfm(&truth.join(format!("truth/r{r}c{c}_disparity.pfm"))))
+        .map(|c| read_pfm(&truth.join(format!("truth/{}_disparity.pfm", c.name))))
         .collect::<Result<_, _>>()?;
     let mut views = Vec::new();
     let mut bands_nm = Vec::new();
-    for (v, &(r, c)) in positions.iter().enumerate() {
-        let path = recon.join(format!("views/r{r}c{c}.hdr"));
+    for (v, cam) in rig.cameras.iter().enumerate() {
+        let name = &cam.name;
+        let path = recon.join(format!("views/{name}.hdr"));
         if !path.is_file() {
             continue;
         }
         let estimate = read_envi(&path)?;
-        let expected = read_envi(&truth.join(format!("truth/r{r}c{c}.hdr")))?;
+        let expected = read_envi(&truth.join(format!("truth/{name}.hdr")))?;
         let shape =
             |e: &anaglyph_core::io::EnviCube| (e.image.width, e.image.height, e.image.channels);
         if shape(&estimate) != shape(&expected) {
@@ -105,7 +105,7 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
                 }
             })
             .collect::<anyhow::Result<_>>()?;
-        let mask = seen_by_all_views(&disparities, &positions, v, &geometry, w, h);
+        let mask = seen_by_all_views(&disparities, &geometry, v, w, h);
         let pixel_ok = estimate
             .image
             .data
@@ -113,8 +113,7 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
             .filter(|p| p.iter().all(|x| x.is_finite()))
             .count();
         views.push(ViewScores {
-            row: r,
-            col: c,
+            name: name.clone(),
             all_pixels: score_cube(&expected.image.data, &estimate.image.data, w, h, nb, None)?,
             seen_by_all: score_cube(
                 &expected.image.data,
@@ -156,9 +155,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let a = &v.all_pixels;
         let s = &v.seen_by_all;
         println!(
-            "\nview r{}c{}: PSNR {:.2} dB, SSIM {:.4}, spectral angle {:.2}°, coverage {:.1} %",
-            v.row,
-            v.col,
+            "\nview {}: PSNR {:.2} dB, SSIM {:.4}, spectral angle {:.2}°, coverage {:.1} %",
+            v.name,
             a.psnr,
             a.ssim,
             a.spectral_angle_deg,

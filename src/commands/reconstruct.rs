@@ -34,7 +34,7 @@ fn true_disparities(
     rig.cameras
         .iter()
         .map(|cam| {
-            let path = dir.join(format!("truth/r{}c{}_disparity.pfm", cam.row, cam.col));
+            let path = dir.join(format!("truth/{}_disparity.pfm", cam.name));
             let map = DisparityMap::from_pfm(read_pfm(&path)?, DisparityConvention::ColumnStep)
                 .with_context(|| path.display().to_string())?;
             map.check(width, height, DisparityConvention::ColumnStep)
@@ -92,8 +92,9 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let views = settings
         .views
         .clone()
-        .unwrap_or_else(|| rig.cameras.iter().map(|c| (c.row, c.col)).collect());
+        .unwrap_or_else(|| rig.cameras.iter().map(|c| c.name.clone()).collect());
     let bands = rig.reconstruction_shape()?.count;
+    let views: Vec<&str> = views.iter().map(String::as_str).collect();
     options.check(captures.width, captures.height, bands, &views)?;
     if let Some(dir) = &args.true_disparity {
         let maps = true_disparities(dir, &rig, captures.width, captures.height)?;
@@ -325,16 +326,15 @@ fn print_summary(field: &LightField) {
     }
     for view in &field.views {
         println!(
-            "  r{}c{}: {:.1} % of pixels seen by every camera, {} without a measurement",
-            view.row,
-            view.col,
+            "  {}: {:.1} % of pixels seen by every camera, {} without a measurement",
+            view.name,
             100.0 * view.visibility.seen_by_all,
             view.solve.demux.unmeasured_pixels
         );
         let pairs: Vec<String> = view
             .pair_agreements
             .iter()
-            .map(|p| format!("r{}c{} {:.1} %", p.row, p.col, 100.0 * p.agreeing))
+            .map(|p| format!("{} {:.1} %", p.neighbour, 100.0 * p.agreeing))
             .collect();
         if !pairs.is_empty() {
             println!("    maps agree within 1 px with {}", pairs.join(", "));

@@ -63,9 +63,20 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
     let rig = Rig::load(&args.rig)?;
     let f = &rig.file;
     let shape = rig.reconstruction_shape()?;
+    let layout = match (f.rows, f.cols, f.baseline_mm) {
+        (Some(rows), Some(cols), Some(b)) => format!(
+            "{rows} × {cols} cameras, baselines {} mm × {} mm",
+            b.horizontal, b.vertical
+        ),
+        _ => format!(
+            "{} cameras at their positions, disparities per {:.2} mm",
+            rig.cameras.len(),
+            rig.disparity_baseline_mm
+        ),
+    };
     println!(
-        "rig '{}': {} × {} cameras, baselines {} mm × {} mm, focal length {} px",
-        f.name, f.rows, f.cols, f.baseline_mm.horizontal, f.baseline_mm.vertical, f.focal_length_px
+        "rig '{}': {layout}, reference {}, focal length {} px",
+        f.name, rig.cameras[rig.reference].name, f.focal_length_px
     );
     println!(
         "sensor {} ({:?}), illuminant {}",
@@ -80,9 +91,10 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
     for cam in &rig.cameras {
         let (lo, hi) = cam.filter.domain();
         println!(
-            "  r{}c{}  filter {:<20} ({lo}–{hi} nm)  sensor {} ({} ch){}",
-            cam.row,
-            cam.col,
+            "  {:<6} [{:>7.1}, {:>7.1}] mm  filter {:<20} ({lo}–{hi} nm)  sensor {} ({} ch){}",
+            cam.name,
+            cam.position_mm[0],
+            cam.position_mm[1],
             cam.filter.name(),
             cam.sensor.name(),
             cam.sensor.channel_count(),

@@ -3,9 +3,10 @@
 use super::{begin_output, format_seconds, rig_inputs};
 use crate::cli::SimulateArgs;
 use crate::progress::spinner;
-use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
+use anaglyph_core::rig::Rig;
 use anaglyph_core::scene::{random_scene, MetamerVariation, Scene, SceneFile, PRESETS};
 use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
+use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
 
@@ -35,14 +36,19 @@ fn load_scene(name: &str, seed: u64) -> anyhow::Result<(SceneFile, std::path::Pa
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
-    let rig = match &args.rig {
-        Some(path) => Rig::load(path)?,
-        None => Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into())?,
+    let rig_path = Path::new(&args.rig);
+    let rig = if rig_path.is_file() {
+        Rig::load(rig_path)?
+    } else {
+        Rig::preset(&args.rig)
+            .with_context(|| format!("--rig {}: no such file, and not a preset", args.rig))?
     };
     let (file, base) = load_scene(&args.scene, args.seed)?;
     let scene = Scene::resolve(file.clone(), &base)?;
     let mut inputs = rig_inputs(&rig);
-    inputs.extend(args.rig.clone());
+    if rig_path.is_file() {
+        inputs.push(rig_path.to_path_buf());
+    }
     inputs.push(Path::new(&args.scene).to_path_buf());
     let folder = begin_output(&args.out, args.force, &inputs)?;
     let mut settings = SimulationSettings {

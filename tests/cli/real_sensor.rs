@@ -53,7 +53,7 @@ fn darkened(
     let text = std::fs::read_to_string(dir.join("sim/rig.toml")).unwrap();
     let mut rig = RigFile::from_toml_str(&text, "sim rig").unwrap();
     for cam in &mut rig.cameras {
-        let file = format!("r{}c{}.png", cam.row, cam.col);
+        let file = format!("r{}c{}.png", cam.row.unwrap(), cam.col.unwrap());
         cam.image = Some(format!("{name}/captures/{file}").into());
         cam.white = Some(format!("{name}/white/{file}").into());
         cam.calibration = None;

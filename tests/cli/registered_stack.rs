@@ -2,23 +2,17 @@
 //! `reconstruct --output both` writes every view's registered stack beside its cube, and
 //! the stack of the estimated disparities is close to the one of the true disparities.
 
-use super::{anaglyph, assert_clean_failure, stderr};
+use super::{anaglyph, assert_clean_failure, stderr, write_monochrome_sensor};
 use anaglyph_core::io::{read_envi, EnviCube};
 use std::path::Path;
 
 const CENTRES_NM: [u32; 6] = [460, 500, 540, 580, 620, 660];
 const VIEWS: [&str; 6] = ["r0c0", "r0c1", "r0c2", "r1c0", "r1c1", "r1c2"];
 
-/// A 2×3 array of monochrome cameras (a panchromatic curve: the sum of the Canon's
-/// three channels) behind 40 nm wide filters, rendered at 160×120 under `dir/sim`.
+/// A 2×3 array of monochrome cameras ([`write_monochrome_sensor`]) behind 40 nm wide
+/// filters, rendered at 160×120 under `dir/sim`.
 fn simulate_monochrome(dir: &Path) {
-    let canon = std::fs::read_to_string("data/spectra/sensors/canon_eos_5d_mark_ii.csv").unwrap();
-    let mut mono = String::from("wavelength_nm,mono\n");
-    for line in canon.lines().skip(1) {
-        let v: Vec<f64> = line.split(',').map(|s| s.parse().unwrap()).collect();
-        mono.push_str(&format!("{},{}\n", v[0], v[1] + v[2] + v[3]));
-    }
-    std::fs::write(dir.join("mono.csv"), mono).unwrap();
+    write_monochrome_sensor(dir);
     let mut rig = String::from(
         "name = \"mono-2x3\"\nrows = 2\ncols = 3\nfocal_length_px = 450.0\n\
          sensor = \"mono.csv\"\nilluminant = \"builtin:cie_d65\"\n\

@@ -184,8 +184,8 @@ fn render_pair(
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
     file.focal_length_px = camera.focal_length_px;
     file.sensor = format!("builtin:{}", camera.sensor);
-    file.rows = 1;
-    file.cols = 2;
+    file.rows = Some(1);
+    file.cols = Some(2);
     file.cameras.truncate(2);
     file.cameras[0].filter = format!("builtin:{}", camera.filters[0]);
     file.cameras[1].filter = format!("builtin:{}", camera.filters[1]);

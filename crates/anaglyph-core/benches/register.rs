@@ -5,7 +5,7 @@
 //! manifest.
 
 use anaglyph_core::register::{
-    multi_baseline_disparities, ArrayGeometry, GridImage, RegistrationMode, RegistrationSettings,
+    multi_baseline_disparities, ArrayGeometry, RegistrationMode, RegistrationSettings, ViewImage,
 };
 use anaglyph_core::stereo::{DisparityRange, GreyImage, MatchingCost, MatchingNetwork};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -19,7 +19,7 @@ const BASELINE_RATIO: f64 = 5.0 / 3.0;
 
 /// A plane at 9 px of disparity per column step: view (r, c) sees the texture shifted
 /// by 9 · (c, ratio · r).
-fn views() -> Vec<GridImage> {
+fn views() -> Vec<ViewImage> {
     let texture = |x: f64, y: f64| {
         (0.5 + 0.2 * ((0.37 * x + 0.11 * y).sin() + 0.7 * (0.23 * y - 0.19 * x).sin())
             + 0.1 * ((x * 0.9898 + y * 0.233).sin() * (0.31 * x).cos())) as f32
@@ -33,9 +33,7 @@ fn views() -> Vec<GridImage> {
                 disparity * BASELINE_RATIO * row as f64,
             );
             let gain = 1.0 - 0.05 * i as f32;
-            GridImage {
-                row,
-                col,
+            ViewImage {
                 image: GreyImage {
                     channels: 1,
                     width: W,
@@ -54,11 +52,7 @@ fn views() -> Vec<GridImage> {
 fn registration(c: &mut Criterion) {
     let images = views();
     let network = MatchingNetwork::default_fast().expect("built-in network");
-    let geometry = ArrayGeometry {
-        rows: ROWS,
-        cols: COLS,
-        baseline_ratio: BASELINE_RATIO,
-    };
+    let geometry = ArrayGeometry::grid(ROWS, COLS, BASELINE_RATIO);
     let settings = RegistrationSettings {
         mode: RegistrationMode::MultiBaseline,
         cost: MatchingCost::Learned(&network),

@@ -101,6 +101,9 @@ pub fn filter(name: &str) -> Result<ResponseCurve> {
 
 /// Any built-in curve by name, searched in every table.
 pub fn any(name: &str) -> Result<ResponseCurve> {
+    if name == PANCHROMATIC {
+        return panchromatic();
+    }
     for table in [SENSORS, ILLUMINANTS, REFLECTANCES, FILTERS, RECOVERY] {
         if table.iter().any(|(k, _)| *k == name) {
             return find("curve", table, name);
@@ -114,6 +117,24 @@ pub fn any(name: &str) -> Result<ResponseCurve> {
         name: name.to_string(),
         available: "see `anaglyph rig init --help` for the list".into(),
     })
+}
+
+/// A monochrome sensor curve derived from a measured RGB one (see [`panchromatic`]).
+pub const PANCHROMATIC: &str = "panchromatic";
+
+/// The sum of the Canon EOS 5D Mark II's three channels: a stand-in for a monochrome
+/// sensor's quantum efficiency (silicon behind the camera's infrared cut), for the rig
+/// presets and tests; no measured monochrome curve is vendored (data/README.md).
+pub fn panchromatic() -> Result<ResponseCurve> {
+    let canon = find("curve", SENSORS, "canon_eos_5d_mark_ii")?;
+    let mut csv = String::from("wavelength_nm,mono\n");
+    for (k, wavelength) in canon.wavelengths().iter().enumerate() {
+        let sum: f64 = (0..canon.channel_count())
+            .map(|c| canon.channel(c)[k])
+            .sum();
+        csv.push_str(&format!("{wavelength},{sum}\n"));
+    }
+    ResponseCurve::from_csv_str(PANCHROMATIC, &csv)
 }
 
 /// Names of all built-in filters.

@@ -87,8 +87,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
         .iter()
         .map(|v| v.disparity.clone())
         .collect();
-    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
-    let mask = seen_by_all_views(&maps, &positions, 0, &ArrayGeometry::of_rig(rig), w, h);
+    let mask = seen_by_all_views(&maps, &ArrayGeometry::of_rig(rig), 0, w, h);
     let truth = &simulation.views[0].truth;
     let estimate = &field.views[0].reflectance;
     let all = score_cube(truth, estimate, w, h, nb, None).unwrap();
@@ -321,7 +320,6 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
         .iter()
         .map(|v| v.disparity.clone())
         .collect();
-    let positions: Vec<(usize, usize)> = simulation.views.iter().map(|v| (v.row, v.col)).collect();
     let geometry = ArrayGeometry::of_rig(&rig);
     let mut scores = Vec::new();
     for prior in [None, Some(ScenePriorSettings::default())] {
@@ -345,7 +343,7 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
                     "{report:?}"
                 );
             }
-            let seen = seen_by_all_views(&truth, &positions, i, &geometry, w, h);
+            let seen = seen_by_all_views(&truth, &geometry, i, w, h);
             let some_miss: Vec<bool> = seen.iter().map(|s| !s).collect();
             let truth = &simulation.views[i].truth;
             let all = score_cube(truth, &view.reflectance, w, h, nb, None).unwrap();
@@ -459,7 +457,7 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
         MatchingCost::Census,
         Some(given(&simulation, truth)),
     );
-    only.views = Some(vec![(0, 0), (1, 3)]);
+    only.views = Some(vec!["r0c0".into(), "r1c3".into()]);
     let field = reconstruct(&rig, &captures, &only, &|_, _, _| {}).unwrap();
     assert_eq!(field.views.len(), 2);
     // r0c0 is the top-left camera: its left border lies outside every camera to its right,
@@ -470,7 +468,7 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
         v.seen_by_all < v.measured_fraction[3] && v.seen_by_all > 0.3,
         "{v:?}"
     );
-    only.views = Some(vec![(2, 0)]);
+    only.views = Some(vec!["r2c0".into()]);
     assert_eq!(
         reconstruct(&rig, &captures, &only, &|_, _, _| {})
             .err()
@@ -481,17 +479,14 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
 
 #[test]
 fn the_search_range_is_found_from_the_captures() {
-    use anaglyph_core::register::{estimate_search_range, GridImage};
+    use anaglyph_core::register::{estimate_search_range, ViewImage};
     let (rig, simulation) = tabletop();
     let captures = ArrayCaptures::from_simulation(&simulation);
     let network = MatchingNetwork::default_fast().unwrap();
-    let images: Vec<GridImage> = captures
+    let images: Vec<ViewImage> = captures
         .grey_images()
         .into_iter()
-        .zip(&simulation.views)
-        .map(|(image, v)| GridImage {
-            row: v.row,
-            col: v.col,
+        .map(|image| ViewImage {
             image,
             matching: Vec::new(),
             measured: None,
@@ -554,11 +549,11 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
         "gel_emerald",
     ];
     let mut file = Rig::paper_rig_file(&filters);
-    file.rows = 3;
-    file.cols = 3;
+    file.rows = Some(3);
+    file.cols = Some(3);
     for (i, cam) in file.cameras.iter_mut().enumerate() {
-        cam.row = i / 3;
-        cam.col = i % 3;
+        cam.row = Some(i / 3);
+        cam.col = Some(i % 3);
     }
     file.sensor = "mono.csv".into();
     file.focal_length_px = 450.0;

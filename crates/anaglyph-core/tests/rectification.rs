@@ -117,13 +117,14 @@ fn quadrant_means(blocks: &[[f64; 4]]) -> Vec<(usize, f64)> {
 }
 
 /// Every camera's calibrated pose (each must have one).
-fn pose_models(captures: &ArrayCaptures) -> Vec<(usize, usize, CameraModel)> {
+fn pose_models(rig: &Rig, captures: &ArrayCaptures) -> Vec<(String, [f64; 2], CameraModel)> {
     captures
         .cameras
         .iter()
-        .map(|c| match &c.calibration {
-            Some(Calibration::Pose(model)) => (c.row, c.col, model.clone()),
-            other => panic!("r{}c{}: not a pose calibration: {other:?}", c.row, c.col),
+        .zip(&rig.cameras)
+        .map(|(c, cam)| match &c.calibration {
+            Some(Calibration::Pose(model)) => (c.name.clone(), cam.position_mm, model.clone()),
+            other => panic!("{}: not a pose calibration: {other:?}", c.name),
         })
         .collect()
 }
@@ -141,18 +142,16 @@ fn rotated_cameras_are_resampled_onto_the_ideal_image_plane() {
     // The rig file the simulator wrote names each camera's calibration file.
     let loaded = Rig::load(&dir.join("rig.toml")).unwrap();
     let captures = ArrayCaptures::load(&loaded, None, None, None).unwrap();
-    let plan = Rectification::plan(pose_models(&captures), WIDTH, HEIGHT).unwrap();
+    let plan = Rectification::plan(pose_models(&loaded, &captures), WIDTH, HEIGHT).unwrap();
     let common = plan.common.unwrap();
     assert!((common.focal_px - 450.0).abs() < 1e-6);
-    assert!(
-        (common.baseline_mm[0] - 30.0).abs() < 1e-6 && (common.baseline_mm[1] - 50.0).abs() < 1e-6
-    );
+    assert!((common.scale[0] - 1.0).abs() < 1e-6 && (common.scale[1] - 1.0).abs() < 1e-6);
     let (mut worst, mut sum, mut count) = (0.0f64, 0.0, 0.0);
     for (k, (cam, view)) in captures.cameras.iter().zip(&ideal.views).enumerate() {
         let rectified = plan.resample(k, &cam.capture, 0.999).unwrap();
         let blocks = block_displacements(&grey(&view.capture), &grey(&rectified.data));
         for (n, shift) in quadrant_means(&blocks) {
-            assert!(n >= 4, "r{}c{}: {n} textured blocks", cam.row, cam.col);
+            assert!(n >= 4, "{}: {n} textured blocks", cam.name);
             worst = worst.max(shift);
             sum += shift;
             count += 1.0;
@@ -184,7 +183,7 @@ fn true_disparities_hold_again_after_rectification() {
         automatic_search_range: false,
         given_disparities: Some(ideal.disparity_maps()),
         solve: SolveSettings::paper(),
-        views: Some(vec![(0, 0), (1, 2)]),
+        views: Some(vec!["r0c0".into(), "r1c2".into()]),
         ..PipelineSettings::new(MatchingCost::Census)
     };
     let rig = rig();
@@ -202,11 +201,7 @@ fn true_disparities_hold_again_after_rectification() {
         );
         [0, 1].map(|k| {
             let v = &field.views[k];
-            let t = simulation
-                .views
-                .iter()
-                .find(|s| (s.row, s.col) == (v.row, v.col))
-                .unwrap();
+            let t = simulation.views.iter().find(|s| s.name == v.name).unwrap();
             score_cube(
                 &t.truth,
                 &v.reflectance,
@@ -248,7 +243,7 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         automatic_search_range: false,
         given_disparities: None,
         solve: SolveSettings::paper(),
-        views: Some(vec![(0, 0)]),
+        views: Some(vec!["r0c0".into()]),
         ..PipelineSettings::new(MatchingCost::Census)
     };
     let rig = rig();
@@ -259,7 +254,8 @@ fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
         let inside: Vec<bool> = match &captures.cameras[0].calibration {
             None => vec![true; WIDTH * HEIGHT],
             Some(_) => {
-                let plan = Rectification::plan(pose_models(&captures), WIDTH, HEIGHT).unwrap();
+                let plan =
+                    Rectification::plan(pose_models(&rig, &captures), WIDTH, HEIGHT).unwrap();
                 (0..WIDTH * HEIGHT)
                     .map(|i| {
                         let (x, y) = plan

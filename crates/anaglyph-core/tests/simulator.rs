@@ -44,7 +44,7 @@ fn simulate(scene: &str, noise: Option<CameraNoise>, seed: u64) -> (Rig, Scene, 
 fn view(sim: &Simulation, row: usize, col: usize) -> &RenderedView {
     sim.views
         .iter()
-        .find(|v| v.row == row && v.col == col)
+        .find(|v| v.name == format!("r{row}c{col}"))
         .unwrap()
 }
 
@@ -71,7 +71,7 @@ fn transfer_error(sim: &Simulation, rig: &Rig, row: usize, col: usize, scale: f6
     let reference = view(sim, 0, 0);
     let target = view(sim, row, col);
     let bands = sim.bands.len();
-    let ratio = rig.file.baseline_mm.vertical / rig.file.baseline_mm.horizontal;
+    let ratio = rig.file.baseline_mm.unwrap().vertical / rig.file.baseline_mm.unwrap().horizontal;
     let mut errors = Vec::new();
     let mut sample = vec![0.0; bands];
     let mut depth = [0.0];

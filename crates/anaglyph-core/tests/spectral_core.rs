@@ -128,8 +128,8 @@ fn exhaustive_selection_finds_the_independently_computed_optimum() {
         for b in a + 1..10 {
             for c in b + 1..10 {
                 let mut file: RigFile = Rig::paper_rig_file(&[names[a], names[b], names[c]]);
-                file.rows = 1;
-                file.cols = 3;
+                file.rows = Some(1);
+                file.cols = Some(3);
                 file.sensor = "builtin:nikon_5100".into();
                 file.illuminant = Some("builtin:cie_d65".into());
                 file.reconstruction.start_nm = shape.start;
@@ -289,11 +289,11 @@ fn monochrome_three_by_three_array_reconstructs_nine_bands() {
         "gel_emerald",
     ];
     let mut file = Rig::paper_rig_file(&filters);
-    file.rows = 3;
-    file.cols = 3;
+    file.rows = Some(3);
+    file.cols = Some(3);
     for (i, cam) in file.cameras.iter_mut().enumerate() {
-        cam.row = i / 3;
-        cam.col = i % 3;
+        cam.row = Some(i / 3);
+        cam.col = Some(i % 3);
     }
     file.sensor = "mono.csv".into();
     file.reconstruction.step_nm = 23.0;

@@ -150,8 +150,8 @@ fn tabletop_pair_registered(
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
     file.focal_length_px = focal_length_px;
     file.calibration_plane_mm = plane_mm;
-    file.rows = 1;
-    file.cols = 2;
+    file.rows = Some(1);
+    file.cols = Some(2);
     file.cameras.truncate(2);
     file.cameras[0].filter = format!("builtin:{}", filters[0]);
     file.cameras[1].filter = format!("builtin:{}", filters[1]);
@@ -392,14 +392,14 @@ fn vertical_pairs_match_through_transposition() {
     // A 2×1 rig: the camera below sees a point at y − d·(b_y/b_x), d the column disparity.
     let (w, h) = (192, 256);
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.rows = 2;
-    file.cols = 1;
+    file.rows = Some(2);
+    file.cols = Some(1);
     file.cameras.truncate(2);
-    file.cameras[1].row = 1;
-    file.cameras[1].col = 0;
+    file.cameras[1].row = Some(1);
+    file.cameras[1].col = Some(0);
     file.cameras[0].filter = "builtin:gel_deep_red".into();
     file.cameras[1].filter = "builtin:gel_violet".into();
-    let ratio = (file.baseline_mm.vertical / file.baseline_mm.horizontal) as f32;
+    let ratio = (file.baseline_mm.unwrap().vertical / file.baseline_mm.unwrap().horizontal) as f32;
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
     let sim = Simulation::run(

@@ -96,16 +96,14 @@ pub fn score_cube(
 }
 
 /// The pixels of view `reference` that every other view sees, from the views' true
-/// disparity maps (`positions[v]` = (row, col) of map v).
+/// disparity maps (`disparities[v]` is view v's of `geometry`).
 pub fn seen_by_all_views(
     disparities: &[Vec<f32>],
-    positions: &[(usize, usize)],
-    reference: usize,
     geometry: &ArrayGeometry,
+    reference: usize,
     width: usize,
     height: usize,
 ) -> Vec<bool> {
-    let me = positions[reference];
     let own = &disparities[reference];
     (0..width * height)
         .map(|i| {
@@ -114,11 +112,11 @@ pub fn seen_by_all_views(
                 return false;
             }
             let (x, y) = ((i % width) as f64, (i / width) as f64);
-            positions.iter().enumerate().all(|(v, &to)| {
+            (0..geometry.len()).all(|v| {
                 if v == reference {
                     return true;
                 }
-                let (sx, sy) = geometry.shift(me, to);
+                let (sx, sy) = geometry.shift(reference, v);
                 let (px, py) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
                 px >= 0.0
                     && py >= 0.0
@@ -164,13 +162,9 @@ mod tests {
     #[test]
     fn a_fronto_parallel_plane_is_seen_except_at_the_borders() {
         let (w, h) = (20, 10);
-        let geometry = ArrayGeometry {
-            rows: 1,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(1, 2, 1.0);
         let maps = vec![vec![3.0f32; w * h]; 2];
-        let seen = seen_by_all_views(&maps, &[(0, 0), (0, 1)], 0, &geometry, w, h);
+        let seen = seen_by_all_views(&maps, &geometry, 0, w, h);
         for (i, s) in seen.iter().enumerate() {
             assert_eq!(*s, i % w >= 3, "pixel {i}");
         }

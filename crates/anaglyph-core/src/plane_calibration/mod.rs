@@ -81,14 +81,14 @@ pub enum PlaneModel {
 /// One camera's checkerboard capture.
 #[derive(Debug, Clone)]
 pub struct BoardCapture {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     pub image: GreyImage,
 }
 
 impl BoardCapture {
-    /// Camera (row, col)'s capture as grey: the mean of its channels.
-    pub fn from_capture(row: usize, col: usize, capture: &LinearImage) -> Self {
+    /// Camera `name`'s capture as grey: the mean of its channels.
+    pub fn from_capture(name: &str, capture: &LinearImage) -> Self {
         let channels = capture.channels.max(1);
         let data = capture
             .data
@@ -96,8 +96,7 @@ impl BoardCapture {
             .map(|p| p.iter().sum::<f32>() / channels as f32)
             .collect();
         BoardCapture {
-            row,
-            col,
+            name: name.to_string(),
             image: GreyImage {
                 channels: 1,
                 width: capture.width,
@@ -111,8 +110,8 @@ impl BoardCapture {
 /// One camera's fitted map and how well it fits.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraPlaneFit {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     /// Camera pixel → reference pixel, row-major.
     pub homography: [[f64; 3]; 3],
     /// Root-mean-square and largest distance between the mapped corners and the
@@ -129,29 +128,21 @@ pub struct CameraPlaneFit {
 pub struct PlaneCalibration {
     pub pattern: BoardPattern,
     pub model: PlaneModel,
-    /// (row, col) of the reference camera.
-    pub reference: (usize, usize),
+    /// The reference camera's name.
+    pub reference: String,
     pub width: usize,
     pub height: usize,
     pub cameras: Vec<CameraPlaneFit>,
     pub seconds: f64,
 }
 
-/// Reads every camera's checkerboard capture `dir/r{row}c{col}.png|tif|tiff` as grey (the
+/// Reads every camera's checkerboard capture `dir/<name>.png|tif|tiff` as grey (the
 /// mean of its channels), after checking that all exist and share one size.
 pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
     let paths: Vec<PathBuf> = rig
         .cameras
         .iter()
-        .map(|c| {
-            find_in(
-                dir,
-                c.row,
-                c.col,
-                &PICTURE_EXTENSIONS,
-                "checkerboard capture",
-            )
-        })
+        .map(|c| find_in(dir, &c.name, &PICTURE_EXTENSIONS, "checkerboard capture"))
         .collect::<Result<_>>()?;
     let mut size = None;
     for path in &paths {
@@ -173,8 +164,7 @@ pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
         .zip(&paths)
         .map(|(cam, path)| {
             Ok(BoardCapture::from_capture(
-                cam.row,
-                cam.col,
+                &cam.name,
                 &read_linear_image(path)?,
             ))
         })
@@ -186,7 +176,7 @@ pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
 pub fn calibrate_to_plane(
     captures: &[BoardCapture],
     pattern: BoardPattern,
-    reference: (usize, usize),
+    reference: &str,
     model: PlaneModel,
 ) -> Result<PlaneCalibration> {
     let clock = Instant::now();
@@ -199,24 +189,28 @@ pub fn calibrate_to_plane(
         .find(|c| (c.image.width, c.image.height) != (width, height))
     {
         return Err(Error::mismatch(
-            format!("checkerboard capture of camera r{}c{}", odd.row, odd.col),
+            format!("checkerboard capture of camera {}", odd.name),
             format!("{}x{} px", odd.image.width, odd.image.height),
             format!("{width}x{height} px like the other cameras'"),
         ));
     }
     let reference_index = captures
         .iter()
-        .position(|c| (c.row, c.col) == reference)
+        .position(|c| c.name == reference)
         .ok_or_else(|| Error::NotFound {
             what: "reference camera".into(),
-            name: format!("r{}c{}", reference.0, reference.1),
-            available: "the rig's cameras".into(),
+            name: reference.to_string(),
+            available: captures
+                .iter()
+                .map(|c| c.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
         })?;
     // Detected in parallel, reported in rig order: the first camera without a board is
     // the one named, whichever thread finishes first.
     let detections: Vec<Result<Vec<[f64; 2]>>> = captures
         .par_iter()
-        .map(|c| detect_board(&c.image, pattern, &format!("r{}c{}", c.row, c.col)))
+        .map(|c| detect_board(&c.image, pattern, &c.name))
         .collect();
     let corners: Vec<Vec<[f64; 2]>> = detections.into_iter().collect::<Result<_>>()?;
     let target = &corners[reference_index];
@@ -228,7 +222,7 @@ pub fn calibrate_to_plane(
     Ok(PlaneCalibration {
         pattern,
         model,
-        reference,
+        reference: reference.to_string(),
         width,
         height,
         cameras,
@@ -244,7 +238,7 @@ fn fit_camera(
     model: PlaneModel,
     (width, height): (usize, usize),
 ) -> Result<CameraPlaneFit> {
-    let name = format!("camera r{}c{}", capture.row, capture.col);
+    let name = format!("camera {}", capture.name);
     if corners.len() != target.len() {
         return Err(Error::mismatch(
             name,
@@ -263,8 +257,7 @@ fn fit_camera(
     let residuals = homography.residuals(corners, target);
     let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
     Ok(CameraPlaneFit {
-        row: capture.row,
-        col: capture.col,
+        name: capture.name.clone(),
         homography: homography.h,
         residual_rms_px: rms,
         residual_max_px: residuals.iter().copied().fold(0.0, f64::max),

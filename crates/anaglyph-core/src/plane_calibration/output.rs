@@ -31,7 +31,7 @@ pub fn write_plane_calibration(
     let corners_dir = dir.join("corners");
     std::fs::create_dir_all(&corners_dir).map_err(|e| Error::io(&corners_dir, e))?;
     for (fit, capture) in calibration.cameras.iter().zip(captures) {
-        let name = format!("r{}c{}", fit.row, fit.col);
+        let name = fit.name.clone();
         let storage = serde_json::json!({
             "homography": {
                 "type_id": "opencv-matrix",
@@ -42,7 +42,7 @@ pub fn write_plane_calibration(
             },
             "image_width": calibration.width,
             "image_height": calibration.height,
-            "reference": format!("r{}c{}", calibration.reference.0, calibration.reference.1),
+            "reference": calibration.reference,
         });
         let text = serde_json::to_string_pretty(&storage).map_err(|e| Error::output(&name, e))?;
         write_atomically(&dir.join(format!("{name}.json")), |w| {

@@ -62,9 +62,8 @@ fn camera_warnings(record: &CameraCalibration, values: usize) -> Vec<String> {
     let fraction = record.saturated_values as f64 / values.max(1) as f64;
     if fraction > SATURATION_WARNING {
         warnings.push(format!(
-            "camera r{}c{}: {:.1} % of values saturated (masked)",
-            record.row,
-            record.col,
+            "camera {}: {:.1} % of values saturated (masked)",
+            record.name,
             100.0 * fraction
         ));
     }
@@ -74,18 +73,16 @@ fn camera_warnings(record: &CameraCalibration, values: usize) -> Vec<String> {
         .and_then(|cv| cv.iter().cloned().reduce(f64::max));
     if let Some(worst) = worst.filter(|&w| w > UNEVEN_WHITE_WARNING) {
         warnings.push(format!(
-            "camera r{}c{}: white board varies by {:.1} % across the frame (vignetting or uneven light): divided out pixel by pixel, right for the lens, wrong if the board was lit unlike the scene",
-            record.row,
-            record.col,
+            "camera {}: white board varies by {:.1} % across the frame (vignetting or uneven light): divided out pixel by pixel, right for the lens, wrong if the board was lit unlike the scene",
+            record.name,
             100.0 * worst
         ));
     }
     if record.brighter_than_white > BRIGHTER_THAN_WHITE_WARNING {
         warnings.push(format!(
-            "camera r{}c{}: {:.1} % of values brighter than a perfect white ({}): was it \
+            "camera {}: {:.1} % of values brighter than a perfect white ({}): was it \
              captured at another exposure or under other light than the scene?",
-            record.row,
-            record.col,
+            record.name,
             100.0 * record.brighter_than_white,
             record.method
         ));

@@ -73,7 +73,7 @@ impl SignalStatistics {
 pub(super) fn check_capture_signal(captures: &ArrayCaptures, saturation: f32) -> Result<()> {
     for cam in &captures.cameras {
         let stats = SignalStatistics::of(&cam.capture, saturation);
-        let camera = format!("camera r{}c{}", cam.row, cam.col);
+        let camera = format!("camera {}", cam.name);
         let black = stats.fraction(stats.black);
         if black >= UNUSABLE_FRACTION {
             return Err(Error::unusable(
@@ -122,8 +122,7 @@ mod tests {
             .into_iter()
             .enumerate()
             .map(|(col, capture)| CameraCapture {
-                row: 0,
-                col,
+                name: format!("r0c{col}"),
                 capture,
                 white: None,
                 exposure: Some(1.0),

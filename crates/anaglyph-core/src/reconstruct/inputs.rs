@@ -1,5 +1,5 @@
 //! The inputs of reconstruction: every camera's capture and white board, read from the
-//! paths of the rig file (or from folders of `r{row}c{col}.png|tif|tiff`), checked against
+//! paths of the rig file (or from folders of `<camera name>.png|tif|tiff`), checked against
 //! the rig, and calibrated into the sensing matrix's units.
 //!
 //! **Calibration.** Exposure differs between cameras and is unknown. With a white-board
@@ -39,8 +39,8 @@ const CALIBRATION_EXTENSIONS: [&str; 4] = ["json", "yml", "yaml", "npy"];
 /// One camera's pictures.
 #[derive(Debug, Clone)]
 pub struct CameraCapture {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     pub capture: LinearImage,
     pub white: Option<LinearImage>,
     /// Exposure metadata (see [`crate::rig::CameraEntry::exposure`]).
@@ -61,8 +61,8 @@ pub struct ArrayCaptures {
 /// How a camera was calibrated.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraCalibration {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     /// "white board" or "exposure metadata".
     pub method: &'static str,
     /// Capture units per sensing-matrix unit, per channel.
@@ -76,23 +76,17 @@ pub struct CameraCalibration {
     pub brighter_than_white: f64,
 }
 
-/// `DIR/r{row}c{col}.{ext}` for the first of `extensions` that exists; `what` names the
-/// file in the error.
-pub(crate) fn find_in(
-    dir: &Path,
-    row: usize,
-    col: usize,
-    extensions: &[&str],
-    what: &str,
-) -> Result<PathBuf> {
+/// `DIR/<name>.{ext}` for the first of `extensions` that exists; `what` names the file in
+/// the error.
+pub(crate) fn find_in(dir: &Path, name: &str, extensions: &[&str], what: &str) -> Result<PathBuf> {
     extensions
         .iter()
-        .map(|e| dir.join(format!("r{row}c{col}.{e}")))
+        .map(|e| dir.join(format!("{name}.{e}")))
         .find(|p| p.is_file())
         .ok_or_else(|| Error::MissingFile {
-            path: dir.join(format!("r{row}c{col}.{}", extensions[0])),
+            path: dir.join(format!("{name}.{}", extensions[0])),
             what: format!(
-                "no {what} r{row}c{col}.{} for camera r{row}c{col}",
+                "no {what} {name}.{} for camera {name}",
                 extensions.join(", .")
             ),
         })
@@ -115,24 +109,23 @@ impl CameraFiles {
         calibrations: Option<&Path>,
     ) -> Result<Self> {
         let capture = match captures {
-            Some(dir) => find_in(dir, cam.row, cam.col, &EXTENSIONS, "capture")?,
+            Some(dir) => find_in(dir, &cam.name, &EXTENSIONS, "capture")?,
             None => cam.image.clone().ok_or_else(|| {
                 Error::mismatch(
-                    format!("camera r{}c{}", cam.row, cam.col),
+                    format!("camera {}", cam.name),
                     "no image in the rig file and no --captures folder",
                     "a capture for every camera",
                 )
             })?,
         };
         let white = match whites {
-            Some(dir) => Some(find_in(dir, cam.row, cam.col, &EXTENSIONS, "white board")?),
+            Some(dir) => Some(find_in(dir, &cam.name, &EXTENSIONS, "white board")?),
             None => cam.white.clone(),
         };
         let calibration = match calibrations {
             Some(dir) => Some(find_in(
                 dir,
-                cam.row,
-                cam.col,
+                &cam.name,
                 &CALIBRATION_EXTENSIONS,
                 "calibration",
             )?),
@@ -177,9 +170,8 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
                     path.display().to_string(),
                     format!("{} channels", header.channels),
                     format!(
-                        "{channels}, as camera r{}c{}'s sensor '{}' (the rig does not match its images)",
-                        cam.row,
-                        cam.col,
+                        "{channels}, as camera {}'s sensor '{}' (the rig does not match its images)",
+                        cam.name,
                         cam.sensor.name()
                     ),
                 ));
@@ -248,8 +240,7 @@ impl ArrayCaptures {
                 Ok(image)
             };
             cameras.push(CameraCapture {
-                row: cam.row,
-                col: cam.col,
+                name: cam.name.clone(),
                 capture: read(&files.capture)?,
                 white: files.white.as_deref().map(read).transpose()?,
                 exposure: cam.exposure,
@@ -273,7 +264,7 @@ impl ArrayCaptures {
                 if let Some(image) = image {
                     if (image.width, image.height) != (width, height) {
                         return Err(Error::Shape {
-                            op: format!("{what} of camera r{}c{}", cam.row, cam.col),
+                            op: format!("{what} of camera {}", cam.name),
                             got: vec![image.width, image.height],
                             expected: vec![width, height],
                         });
@@ -304,8 +295,7 @@ impl ArrayCaptures {
                 .views
                 .iter()
                 .map(|v| CameraCapture {
-                    row: v.row,
-                    col: v.col,
+                    name: v.name.clone(),
                     capture: image(&v.capture, v.channels),
                     white: Some(image(&v.white, v.channels)),
                     exposure: Some(v.exposure),
@@ -401,7 +391,7 @@ pub fn calibrate(
     let mut first_row = 0;
     for cam in &captures.cameras {
         let ch = cam.capture.channels;
-        let name = format!("camera r{}c{}", cam.row, cam.col);
+        let name = format!("camera {}", cam.name);
         let (method, gain, variation) = match (&cam.white, cam.exposure) {
             (Some(white), _) => {
                 let mut gain = Vec::with_capacity(ch);
@@ -469,8 +459,6 @@ pub fn calibrate(
             })
             .collect();
         views.push(NormalisedView {
-            row: cam.row,
-            col: cam.col,
             image: Image {
                 width: captures.width,
                 height: captures.height,
@@ -479,8 +467,7 @@ pub fn calibrate(
             },
         });
         records.push(CameraCalibration {
-            row: cam.row,
-            col: cam.col,
+            name: cam.name.clone(),
             method,
             gain,
             white_variation: variation,

@@ -86,8 +86,8 @@ pub type Progress<'a> = dyn Fn(Stage, usize, usize) + Sync + 'a;
 /// One reconstructed view.
 #[derive(Debug, Clone)]
 pub struct ReconstructedView {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     /// Reflectance, `height × width × bands`, NaN where nothing was measured.
     pub reflectance: Vec<f32>,
     /// Disparity per column step of the array (the simulator's convention), NaN where
@@ -202,7 +202,7 @@ fn check_captures_follow_rig(rig: &Rig, captures: &ArrayCaptures) -> Result<()> 
             .cameras
             .iter()
             .zip(&rig.cameras)
-            .all(|(a, b)| (a.row, a.col) == (b.row, b.col));
+            .all(|(a, b)| a.name == b.name);
     if follows {
         Ok(())
     } else {
@@ -215,23 +215,9 @@ fn check_captures_follow_rig(rig: &Rig, captures: &ArrayCaptures) -> Result<()> 
 }
 
 /// The cameras (rig order) of the requested views; None: every camera.
-fn requested_views(rig: &Rig, views: Option<&[(usize, usize)]>) -> Result<Vec<usize>> {
+fn requested_views(rig: &Rig, views: Option<&[String]>) -> Result<Vec<usize>> {
     let Some(list) = views else {
         return Ok((0..rig.cameras.len()).collect());
     };
-    list.iter()
-        .map(|&(r, c)| {
-            rig.cameras
-                .iter()
-                .position(|cam| (cam.row, cam.col) == (r, c))
-                .ok_or_else(|| Error::NotFound {
-                    what: "view".into(),
-                    name: format!("r{r}c{c}"),
-                    available: format!(
-                        "the cameras of the {}x{} rig (not in the {}x{} rig)",
-                        rig.file.rows, rig.file.cols, rig.file.rows, rig.file.cols
-                    ),
-                })
-        })
-        .collect()
+    list.iter().map(|name| rig.camera_index(name)).collect()
 }

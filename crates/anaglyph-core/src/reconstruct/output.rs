@@ -101,13 +101,7 @@ impl OutputOptions {
     /// Checks, before any work, what the output will need: every probe inside the
     /// `width × height` images, and where a truth is named, a cube of `bands` bands at that
     /// size for every view in `views` (their headers and data sizes; nothing is read yet).
-    pub fn check(
-        &self,
-        width: usize,
-        height: usize,
-        bands: usize,
-        views: &[(usize, usize)],
-    ) -> Result<()> {
+    pub fn check(&self, width: usize, height: usize, bands: usize, views: &[&str]) -> Result<()> {
         if !self.products.cubes() && !self.probes.is_empty() {
             return Err(Error::mismatch(
                 "probe",
@@ -127,8 +121,8 @@ impl OutputOptions {
         let Some(truth) = self.truth.as_ref().filter(|_| !self.probes.is_empty()) else {
             return Ok(());
         };
-        for (row, col) in views {
-            let path = truth.join(format!("truth/r{row}c{col}.hdr"));
+        for name in views {
+            let path = truth.join(format!("truth/{name}.hdr"));
             let shape = read_envi_shape(&path)?;
             if (shape.width, shape.height, shape.bands) != (width, height, bands) {
                 return Err(Error::Shape {
@@ -151,7 +145,7 @@ pub fn write_light_field(
     options: &OutputOptions,
 ) -> Result<usize> {
     let (w, h) = (field.width, field.height);
-    let views: Vec<(usize, usize)> = field.views.iter().map(|v| (v.row, v.col)).collect();
+    let views: Vec<&str> = field.views.iter().map(|v| v.name.as_str()).collect();
     options.check(w, h, field.bands.len(), &views)?;
     let dir = folder.path();
     let cubes = options.products.cubes();
@@ -175,11 +169,11 @@ pub fn write_light_field(
         .filter(|d| d.is_finite())
         .fold([0.0f32, 0.0f32], |[lo, hi], &d| [lo.min(d), hi.max(d)]);
     for view in &field.views {
-        let name = format!("r{}c{}", view.row, view.col);
+        let name = view.name.clone();
         let camera = rig
             .cameras
             .iter()
-            .find(|c| (c.row, c.col) == (view.row, view.col))
+            .find(|c| c.name == view.name)
             .ok_or_else(|| Error::NotFound {
                 what: "camera of the view".into(),
                 name: name.clone(),

@@ -42,13 +42,12 @@ pub(super) fn rectify_array(
         ));
     }
     let clock = std::time::Instant::now();
-    let plan = plan_of(captures)?;
+    let plan = plan_of(rig, captures)?;
     let total = captures.cameras.len();
     let mut cameras = Vec::with_capacity(total);
     for (k, cam) in captures.cameras.iter().enumerate() {
         cameras.push(CameraCapture {
-            row: cam.row,
-            col: cam.col,
+            name: cam.name.clone(),
             capture: plan.resample(k, &cam.capture, saturation_level)?,
             white: cam.white.clone(),
             exposure: cam.exposure,
@@ -71,13 +70,16 @@ pub(super) fn rectify_array(
     }))
 }
 
-/// The plan of captures that all carry calibrations of one kind (poses or homographies).
-fn plan_of(captures: &ArrayCaptures) -> Result<Rectification> {
+/// The plan of captures (in `rig`'s order) that all carry calibrations of one kind (poses
+/// or homographies).
+fn plan_of(rig: &Rig, captures: &ArrayCaptures) -> Result<Rectification> {
     let (mut poses, mut planes) = (Vec::new(), Vec::new());
-    for c in &captures.cameras {
+    for (c, cam) in captures.cameras.iter().zip(&rig.cameras) {
         match &c.calibration {
-            Some(Calibration::Pose(model)) => poses.push((c.row, c.col, model.clone())),
-            Some(Calibration::Plane(h)) => planes.push((c.row, c.col, *h)),
+            Some(Calibration::Pose(model)) => {
+                poses.push((c.name.clone(), cam.position_mm, model.clone()))
+            }
+            Some(Calibration::Plane(h)) => planes.push((c.name.clone(), *h)),
             None => {}
         }
     }
@@ -99,40 +101,35 @@ fn plan_of(captures: &ArrayCaptures) -> Result<Rectification> {
 
 fn camera_names(list: &[&CameraCapture]) -> String {
     list.iter()
-        .map(|c| format!("r{}c{}", c.row, c.col))
+        .map(|c| c.name.clone())
         .collect::<Vec<_>>()
         .join(", ")
 }
 
-/// What rectification cannot correct: optical centres off the grid, baselines that
-/// disagree with the rig, frames that reach outside the captures.
+/// What rectification cannot correct: optical centres off the rig's layout, a layout
+/// stretched against the rig's, frames that reach outside the captures.
 fn rectification_warnings(
     rig: &Rig,
     plan: &Rectification,
     rectified: &ArrayCaptures,
 ) -> Vec<String> {
     let mut warnings = Vec::new();
-    let offset = plan.worst_grid_offset();
+    let [sx, sy] = plan.common.map_or([0.0; 2], |c| c.scale);
+    let scale = if sx > 0.0 { sx } else { sy };
+    let offset = plan.worst_grid_offset_mm() / (scale * rig.disparity_baseline_mm);
     if offset > GRID_OFFSET_WARNING {
         warnings.push(format!(
-            "rectification: an optical centre lies {:.1} % of the baseline off the camera \
-             grid; no image warp removes that parallax (about that fraction of each disparity)",
+            "rectification: an optical centre lies {:.1} % of the baseline off the rig's \
+             layout; no image warp removes that parallax (about that fraction of each \
+             disparity)",
             100.0 * offset
         ));
     }
-    let [bx, by] = plan.common.map_or([0.0; 2], |c| c.baseline_mm);
-    let (rig_bx, rig_by) = (
-        rig.file.baseline_mm.horizontal,
-        rig.file.baseline_mm.vertical,
-    );
-    if bx > 0.0 && by > 0.0 && rig_bx > 0.0 && rig_by > 0.0 {
-        let ratio = (by / bx) / (rig_by / rig_bx);
-        if (ratio - 1.0).abs() > GRID_OFFSET_WARNING {
-            warnings.push(format!(
-                "rectification: the calibrated baselines are {bx:.2} x {by:.2} but the rig \
-                 says {rig_bx} x {rig_by}; registration uses the rig's ratio"
-            ));
-        }
+    if sx > 0.0 && sy > 0.0 && ((sy / sx) - 1.0).abs() > GRID_OFFSET_WARNING {
+        warnings.push(format!(
+            "rectification: the calibrated camera positions are {sx:.3} x {sy:.3} times the \
+             rig's along x and y; registration uses the rig's layout"
+        ));
     }
     let cropped: f64 = rectified
         .cameras

@@ -10,8 +10,8 @@ use super::{ArrayCaptures, CalibratedArray, PipelineSettings, RunLog, Stage};
 use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
-    pair_agreements, register_views, ArrayGeometry, CommonSignal, GridImage, MatchingImage,
-    PairAgreement, RegistrationMode, SearchRange, COMMON_SIGNALS,
+    pair_agreements, register_views, ArrayGeometry, CommonSignal, MatchingImage, PairAgreement,
+    RegistrationMode, SearchRange, ViewImage, COMMON_SIGNALS,
 };
 use crate::rig::Rig;
 use crate::stereo::GreyImage;
@@ -28,7 +28,7 @@ pub(super) struct RegisteredArray {
     /// Per camera: the fraction of its disparities a neighbour's map confirms (NaN: none
     /// finite).
     pub agreement: Vec<f64>,
-    /// Per camera: its agreement with each row and column neighbour.
+    /// Per camera: its agreement with each neighbour.
     pub pair_agreements: Vec<Vec<PairAgreement>>,
 }
 
@@ -45,12 +45,11 @@ pub(super) fn register_array(
         Some(given) => given_maps(given, rig, captures)?,
         None => estimate_maps(captures, calibrated, &geometry, settings, log, progress)?,
     };
-    let positions: Vec<(usize, usize)> = rig.cameras.iter().map(|c| (c.row, c.col)).collect();
     let (w, h) = (captures.width, captures.height);
     let maps = &registered.disparities;
-    registered.agreement = neighbour_agreement(maps, &positions, &geometry, w, h);
+    registered.agreement = neighbour_agreement(maps, &geometry, w, h);
     registered.pair_agreements = (0..maps.len())
-        .map(|i| pair_agreements(maps, &positions, &geometry, i, w, h))
+        .map(|i| pair_agreements(maps, &geometry, i, w, h))
         .collect();
     Ok(registered)
 }
@@ -91,7 +90,7 @@ fn estimate_maps(
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
     let (matching, common) = matching_images(calibrated, settings)?;
-    let images = grid_images(captures, matching);
+    let images = view_images(captures, matching);
     let mut registration_settings = settings.registration;
     let mut search_range = None;
     if settings.automatic_search_range {
@@ -145,17 +144,15 @@ fn matching_images(
     Ok((per_camera, Some(signals)))
 }
 
-/// Each camera's grey image at its grid place, with its matching images and the pixels
-/// it measured (None: all).
-fn grid_images(captures: &ArrayCaptures, matching: Vec<Vec<GreyImage>>) -> Vec<GridImage> {
+/// Each camera's grey image, with its matching images and the pixels it measured (None:
+/// all).
+fn view_images(captures: &ArrayCaptures, matching: Vec<Vec<GreyImage>>) -> Vec<ViewImage> {
     captures
         .grey_images()
         .into_iter()
         .zip(matching)
         .zip(&captures.cameras)
-        .map(|((image, matching), cam)| GridImage {
-            row: cam.row,
-            col: cam.col,
+        .map(|((image, matching), cam)| ViewImage {
             image,
             matching,
             measured: cam.capture.data.iter().any(|v| v.is_nan()).then(|| {

@@ -93,8 +93,8 @@ pub struct PipelineSettings<'a> {
     pub demux: DemuxOptions,
     /// The stages of each view's solve after demultiplexing ([`crate::solve`]).
     pub solve: SolveSettings,
-    /// Views to reconstruct as (row, col); None: every view.
-    pub views: Option<Vec<(usize, usize)>>,
+    /// Views to reconstruct, by camera name; None: every view.
+    pub views: Option<Vec<String>>,
     /// Keep each view's registered stack: every camera's normalised capture warped into
     /// the view, NaN where the camera does not see the point
     /// ([`super::ReconstructedView::registered`]).

@@ -10,14 +10,14 @@ use serde::Serialize;
 /// The result of [`super::reconstruct`] for one view, without its images.
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewSummary {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     pub visibility: Visibility,
     pub demux: DemuxReport,
     /// Smallest and largest finite disparity.
     pub disparity_range: [f32; 2],
     pub neighbour_agreement: Option<f64>,
-    /// Agreement with each row and column neighbour's map.
+    /// Agreement with each neighbour's map.
     pub pair_agreements: Vec<PairAgreement>,
     pub unmeasured_pixels: usize,
     pub median_residual: Option<f64>,
@@ -30,8 +30,7 @@ pub struct ViewSummary {
 impl ReconstructedView {
     pub fn summary(&self) -> ViewSummary {
         ViewSummary {
-            row: self.row,
-            col: self.col,
+            name: self.name.clone(),
             visibility: self.visibility.clone(),
             demux: self.solve.demux.clone(),
             disparity_range: self.disparity.range(),

@@ -103,25 +103,22 @@ impl<'a> ViewPass<'a> {
         let agreement = self.registered.agreement[v];
         if visibility.seen_by_all < LOW_VISIBILITY_WARNING && self.rig.cameras.len() > 1 {
             warnings.push(format!(
-                "view r{}c{}: only {:.1} % of pixels are seen by every camera",
-                cam.row,
-                cam.col,
+                "view {}: only {:.1} % of pixels are seen by every camera",
+                cam.name,
                 100.0 * visibility.seen_by_all
             ));
         }
         if agreement < LOW_AGREEMENT_WARNING {
             warnings.push(format!(
-                "view r{}c{}: only {:.1} % of its disparities agree with a neighbouring view's \
+                "view {}: only {:.1} % of its disparities agree with a neighbouring view's \
                  map; registration is unreliable (repetitive or textureless surfaces, or a \
                  search range that misses the nearest surfaces)",
-                cam.row,
-                cam.col,
+                cam.name,
                 100.0 * agreement
             ));
         }
         Ok(ReconstructedView {
-            row: cam.row,
-            col: cam.col,
+            name: cam.name.clone(),
             reflectance: solve.spectra,
             disparity: DisparityMap {
                 width: self.context.views[v].image.width,

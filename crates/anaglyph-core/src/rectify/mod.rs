@@ -61,12 +61,13 @@ pub enum CameraMap {
 /// What rectification does to one camera.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraRectification {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
     /// Largest displacement of the rectifying map, pixels.
     pub max_correction_px: f64,
-    /// Distance of the optical centre from the fitted grid, in the calibration's unit (mm);
-    /// None for homographies, which do not tell where the camera is.
+    /// Distance of the optical centre from where the fitted layout puts it, in the
+    /// calibration's unit (mm); None for homographies, which do not tell where the camera
+    /// is.
     pub grid_offset_mm: Option<f64>,
     #[serde(skip)]
     pub map: CameraMap,
@@ -81,8 +82,10 @@ pub struct CommonCamera {
     pub principal_point: [f64; 2],
     /// World to rectified camera: rows are the array's x, y and viewing axes.
     pub orientation: Matrix3,
-    /// Fitted horizontal and vertical baselines (0 where the array has one column or row).
-    pub baseline_mm: [f64; 2],
+    /// Calibrated distance per millimetre of the rig's layout along the array's x and y
+    /// axes: 1 where the calibration agrees with the rig (0 along an axis the array does
+    /// not extend in).
+    pub scale: [f64; 2],
 }
 
 /// The common image plane of an array and the map of every camera onto it.
@@ -117,26 +120,30 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-/// Least-squares fit of centres `P(r, c) ≈ O + c·u + r·v`; returns (O, u, v), u or v zero
-/// when the array has a single column or row.
-fn fit_grid(positions: &[(usize, usize, [f64; 3])]) -> Result<[[f64; 3]; 3]> {
-    let cols = positions.iter().map(|p| p.1).max().unwrap_or(0) + 1;
-    let rows = positions.iter().map(|p| p.0).max().unwrap_or(0) + 1;
-    let regressors = |r: usize, c: usize| {
-        let mut x = vec![1.0];
-        if cols > 1 {
-            x.push(c as f64);
-        }
-        if rows > 1 {
-            x.push(r as f64);
-        }
-        x
+/// Least-squares fit of optical centres `P ≈ O + x·u + y·v` to the cameras' positions
+/// (x, y) in the rig's layout (mm); returns (O, u, v), u or v zero when the array does not
+/// extend along x or y.
+fn fit_layout(cameras: &[([f64; 2], [f64; 3])]) -> Result<[[f64; 3]; 3]> {
+    let extends = |axis: usize| {
+        let first = cameras.first().map_or(0.0, |c| c.0[axis]);
+        cameras.iter().any(|c| (c.0[axis] - first).abs() > 1e-9)
     };
-    let k = regressors(0, 0).len();
+    let (along_x, along_y) = (extends(0), extends(1));
+    let regressors = |[x, y]: [f64; 2]| {
+        let mut r = vec![1.0];
+        if along_x {
+            r.push(x);
+        }
+        if along_y {
+            r.push(y);
+        }
+        r
+    };
+    let k = 1 + usize::from(along_x) + usize::from(along_y);
     let mut normal = faer::Mat::<f64>::zeros(k, k);
     let mut rhs = vec![[0.0; 3]; k];
-    for &(r, c, p) in positions {
-        let x = regressors(r, c);
+    for &(position, p) in cameras {
+        let x = regressors(position);
         for i in 0..k {
             for j in 0..k {
                 normal[(i, j)] += x[i] * x[j];
@@ -155,14 +162,14 @@ fn fit_grid(positions: &[(usize, usize, [f64; 3])]) -> Result<[[f64; 3]; 3]> {
     }
     if coefficients.iter().flatten().any(|v| !v.is_finite()) {
         return Err(Error::LinearAlgebra {
-            op: "rectification: fitting the camera grid".into(),
-            message: "the cameras' grid positions do not determine a grid".into(),
+            op: "rectification: fitting the camera layout".into(),
+            message: "the cameras' positions do not determine the array's plane".into(),
         });
     }
     let mut it = coefficients.into_iter();
     let origin = it.next().unwrap_or([0.0; 3]);
-    let u = if cols > 1 { it.next() } else { None };
-    let v = if rows > 1 { it.next() } else { None };
+    let u = if along_x { it.next() } else { None };
+    let v = if along_y { it.next() } else { None };
     Ok([origin, u.unwrap_or([0.0; 3]), v.unwrap_or([0.0; 3])])
 }
 
@@ -179,30 +186,28 @@ fn check_array_size(cameras: usize, width: usize, height: usize) -> Result<()> {
 }
 
 impl Rectification {
-    /// Plans the rectification of cameras given as (row, col, model), all of `width ×
-    /// height` pixels.
+    /// Plans the rectification of cameras given as (name, position in the rig's layout in
+    /// mm, model), all of `width × height` pixels.
     pub fn plan(
-        cameras: Vec<(usize, usize, CameraModel)>,
+        cameras: Vec<(String, [f64; 2], CameraModel)>,
         width: usize,
         height: usize,
     ) -> Result<Self> {
         check_array_size(cameras.len(), width, height)?;
-        for (r, c, model) in &cameras {
+        for (name, _, model) in &cameras {
             if let Some((w, h)) = model.image_size {
                 if (w, h) != (width, height) {
                     return Err(Error::mismatch(
-                        format!("calibration of camera r{r}c{c}"),
+                        format!("calibration of camera {name}"),
                         format!("made for {w}x{h} px images"),
                         format!("the captures' {width}x{height}"),
                     ));
                 }
             }
         }
-        let positions: Vec<(usize, usize, [f64; 3])> = cameras
-            .iter()
-            .map(|(r, c, m)| (*r, *c, m.centre()))
-            .collect();
-        let [origin, u, v] = fit_grid(&positions)?;
+        let centres: Vec<([f64; 2], [f64; 3])> =
+            cameras.iter().map(|(_, at, m)| (*at, m.centre())).collect();
+        let [origin, u, v] = fit_layout(&centres)?;
         let mean_axis = |k: usize| {
             normalised(cameras.iter().fold([0.0; 3], |acc, (_, _, m)| {
                 let a = m.axis(k);
@@ -233,8 +238,8 @@ impl Rectification {
             return Err(Error::unusable(
                 "rectification",
                 format!(
-                    "the cameras look {:.0}° away from the normal of their grid: the rig's rows \
-                     and columns do not match the calibrated positions (swapped or mirrored?)",
+                    "the cameras look {:.0}° away from the normal of their layout: the rig's \
+                     camera positions do not match the calibrated ones (swapped or mirrored?)",
                     cosine.clamp(-1.0, 1.0).acos().to_degrees()
                 ),
             ));
@@ -248,16 +253,15 @@ impl Rectification {
                 focal_px,
                 principal_point: [0.5 * width as f64 - 0.5, 0.5 * height as f64 - 0.5],
                 orientation: [x_axis, y_axis, z_axis],
-                baseline_mm: [norm(u), norm(v)],
+                scale: [norm(u), norm(v)],
             }),
             cameras: cameras
                 .into_iter()
-                .map(|(row, col, model)| {
+                .map(|(name, [x, y], model)| {
                     let p = model.centre();
-                    let g = [0, 1, 2].map(|d| origin[d] + col as f64 * u[d] + row as f64 * v[d]);
+                    let g = [0, 1, 2].map(|d| origin[d] + x * u[d] + y * v[d]);
                     CameraRectification {
-                        row,
-                        col,
+                        name,
                         max_correction_px: 0.0,
                         grid_offset_mm: Some(norm([p[0] - g[0], p[1] - g[1], p[2] - g[2]])),
                         map: CameraMap::Pose(model),
@@ -268,17 +272,17 @@ impl Rectification {
         Ok(plan.with_corrections())
     }
 
-    /// Plans the rectification of an array calibrated to a plane: cameras given as (row,
-    /// col, homography onto the reference camera), all of `width × height` pixels. Each
+    /// Plans the rectification of an array calibrated to a plane: cameras given as (name,
+    /// homography onto the reference camera), all of `width × height` pixels. Each
     /// homography is checked on the frame ([`Homography::check_frame`]).
     pub fn through_plane(
-        cameras: Vec<(usize, usize, Homography)>,
+        cameras: Vec<(String, Homography)>,
         width: usize,
         height: usize,
     ) -> Result<Self> {
         check_array_size(cameras.len(), width, height)?;
-        for (r, c, h) in &cameras {
-            h.check_frame(width, height, &format!("homography of camera r{r}c{c}"))?;
+        for (name, h) in &cameras {
+            h.check_frame(width, height, &format!("homography of camera {name}"))?;
         }
         let plan = Rectification {
             width,
@@ -286,9 +290,8 @@ impl Rectification {
             common: None,
             cameras: cameras
                 .into_iter()
-                .map(|(row, col, h)| CameraRectification {
-                    row,
-                    col,
+                .map(|(name, h)| CameraRectification {
+                    name,
                     max_correction_px: 0.0,
                     grid_offset_mm: None,
                     map: CameraMap::Plane {
@@ -343,23 +346,13 @@ impl Rectification {
         }
     }
 
-    /// Largest distance of an optical centre from the fitted grid, as a fraction of the
-    /// larger fitted baseline.
-    pub fn worst_grid_offset(&self) -> f64 {
-        let Some(common) = &self.common else {
-            return 0.0;
-        };
-        let baseline = common.baseline_mm[0].max(common.baseline_mm[1]);
-        let worst = self
-            .cameras
+    /// Largest distance of an optical centre from where the fitted layout puts it, in the
+    /// calibration's unit (0 for homographies).
+    pub fn worst_grid_offset_mm(&self) -> f64 {
+        self.cameras
             .iter()
             .filter_map(|c| c.grid_offset_mm)
-            .fold(0.0, f64::max);
-        if baseline > 0.0 {
-            worst / baseline
-        } else {
-            0.0
-        }
+            .fold(0.0, f64::max)
     }
 
     /// Resamples capture `image` of camera `camera` onto the common plane (bicubic).
@@ -380,7 +373,7 @@ impl Rectification {
         })?;
         if (image.width, image.height) != (w, h) {
             return Err(Error::Shape {
-                op: format!("rectifying camera r{}c{}", cam.row, cam.col),
+                op: format!("rectifying camera {}", cam.name),
                 got: vec![image.width, image.height],
                 expected: vec![w, h],
             });
@@ -453,15 +446,16 @@ mod tests {
     use super::*;
     use crate::scene::{rotation, PinholeCamera, Vec3};
 
-    fn array(jitter_deg: f64, offset_mm: f64) -> Vec<(usize, usize, CameraModel)> {
+    fn array(jitter_deg: f64, offset_mm: f64) -> Vec<(String, [f64; 2], CameraModel)> {
         (0..8)
             .map(|i| {
                 let (r, c) = (i / 4, i % 4);
-                let mut camera = PinholeCamera::on_grid(r, c, (30.0, 50.0), 500.0, (160, 120));
+                let at = [c as f64 * 30.0, r as f64 * 50.0];
+                let mut camera = PinholeCamera::at_position(at, 500.0, (160, 120));
                 let s = (i as f64 * 1.7).sin();
                 camera.rotation = rotation([jitter_deg * s, -jitter_deg * s * 0.5, jitter_deg]);
                 camera.centre = camera.centre + Vec3::new(0.0, 0.0, offset_mm * s);
-                (r, c, CameraModel::from_pinhole(&camera))
+                (format!("r{r}c{c}"), at, CameraModel::from_pinhole(&camera))
             })
             .collect()
     }
@@ -471,10 +465,7 @@ mod tests {
         let plan = Rectification::plan(array(0.0, 0.0), 160, 120).unwrap();
         let common = plan.common.unwrap();
         assert!((common.focal_px - 500.0).abs() < 1e-9);
-        assert!(
-            (common.baseline_mm[0] - 30.0).abs() < 1e-9
-                && (common.baseline_mm[1] - 50.0).abs() < 1e-9
-        );
+        assert!((common.scale[0] - 1.0).abs() < 1e-9 && (common.scale[1] - 1.0).abs() < 1e-9);
         for (k, cam) in plan.cameras.iter().enumerate() {
             assert!(
                 cam.max_correction_px < 1e-9,
@@ -507,17 +498,17 @@ mod tests {
             assert!((sx - want.0).abs() < 1e-9 && (sy - want.1).abs() < 1e-9);
             assert!(plan.cameras[k].max_correction_px > 1.0);
         }
-        assert!(plan.worst_grid_offset() < 1e-9);
+        assert!(plan.worst_grid_offset_mm() < 1e-9);
         let moved = Rectification::plan(array(0.0, 2.0), 160, 120).unwrap();
-        let worst = moved.worst_grid_offset() * 50.0;
+        let worst = moved.worst_grid_offset_mm();
         assert!(worst > 1.0 && worst < 2.0, "{worst}");
     }
 
     #[test]
     fn bad_layouts_and_sizes_are_refused() {
         let mut mirrored = array(0.0, 0.0);
-        for (r, _, _) in &mut mirrored {
-            *r = 1 - *r; // rows swapped: the grid's normal points backwards
+        for (_, at, _) in &mut mirrored {
+            at[1] = 50.0 - at[1]; // rows swapped: the layout's normal points backwards
         }
         let err = Rectification::plan(mirrored, 160, 120)
             .unwrap_err()

@@ -94,7 +94,7 @@ pub fn refine_view(
         || white_response.iter().any(|r| !(*r > 0.0) || !r.is_finite())
     {
         return Err(Error::mismatch(
-            format!("white responses of camera r{}c{}", view.row, view.col),
+            "white responses of the guiding camera".to_string(),
             format!("{white_response:?}"),
             format!("{} positive, finite values", view.image.channels),
         ));

@@ -2,8 +2,8 @@
 //!
 //! A surface point seen by view i at (x, y) with disparity d appears in view j at
 //! `(x, y) + d · shift(i, j)` ([`ArrayGeometry::shift`]), and j's own map should give it
-//! the same disparity there. Multi-baseline registration keeps only the pixels that a row
-//! or column neighbour confirms ([`confirmed_by_neighbours`]). After registration, the
+//! the same disparity there. Multi-baseline registration keeps only the pixels that a
+//! neighbour ([`ArrayGeometry::neighbours`]) confirms ([`confirmed_by_neighbours`]). After registration, the
 //! fraction of a view's pixels that some neighbour confirms ([`neighbour_agreement`])
 //! tells a user, without any ground truth, how far to trust the maps. Occlusions keep it
 //! below 1, and repetitive or textureless surfaces, where each view picks a different
@@ -20,26 +20,6 @@ use serde::Serialize;
 /// 0.918–0.991, against 0.650–0.854 on the periodic scene, whose registration fails. The
 /// true disparities give 0.951–1.000 on all three (occlusions keep them below 1).
 pub const LOW_AGREEMENT_WARNING: f64 = 0.9;
-
-/// The row and column neighbours of view `i` that exist, with the shift per unit
-/// disparity from `i` to each.
-pub(super) fn neighbours(
-    positions: &[(usize, usize)],
-    geometry: &ArrayGeometry,
-    i: usize,
-) -> Vec<(usize, (f64, f64))> {
-    let (r, c) = positions[i];
-    [
-        (r, c + 1),
-        (r, c.wrapping_sub(1)),
-        (r + 1, c),
-        (r.wrapping_sub(1), c),
-    ]
-    .iter()
-    .filter_map(|&at| positions.iter().position(|&p| p == at))
-    .map(|j| (j, geometry.shift(positions[i], positions[j])))
-    .collect()
-}
 
 /// The value of `map` (a neighbour's, `width × height`) at the pixel nearest to where the
 /// point of pixel (x, y) at disparity `d` lands (`shift` per unit disparity); None
@@ -59,18 +39,21 @@ fn at_match(
     inside.then(|| map[ys as usize * width + xs as usize])
 }
 
-/// View `i`'s map with NaN wherever no row or column neighbour's map agrees within
+/// View `i`'s map with NaN wherever no neighbour's map agrees within
 /// [`LEFT_RIGHT_TOLERANCE`] at the corresponding pixel. A view without neighbours is
 /// returned as it is.
 pub fn confirmed_by_neighbours(
     disparities: &[Vec<f32>],
-    positions: &[(usize, usize)],
     geometry: &ArrayGeometry,
     i: usize,
     width: usize,
     height: usize,
 ) -> Vec<f32> {
-    let neighbours = neighbours(positions, geometry, i);
+    let neighbours: Vec<(usize, (f64, f64))> = geometry
+        .neighbours(i)
+        .into_iter()
+        .map(|j| (j, geometry.shift(i, j)))
+        .collect();
     if neighbours.is_empty() {
         return disparities[i].clone();
     }
@@ -95,12 +78,10 @@ pub fn confirmed_by_neighbours(
         .collect()
 }
 
-/// For every view, the fraction of its pixels with a disparity that a row or column
-/// neighbour confirms (see [`confirmed_by_neighbours`]); NaN for a view with no finite
+/// For every view, the fraction of its pixels with a disparity that a neighbour confirms (see [`confirmed_by_neighbours`]); NaN for a view with no finite
 /// disparity, 1 for a view without neighbours.
 pub fn neighbour_agreement(
     disparities: &[Vec<f32>],
-    positions: &[(usize, usize)],
     geometry: &ArrayGeometry,
     width: usize,
     height: usize,
@@ -111,22 +92,20 @@ pub fn neighbour_agreement(
             if known == 0 {
                 return f64::NAN;
             }
-            let confirmed =
-                confirmed_by_neighbours(disparities, positions, geometry, i, width, height)
-                    .iter()
-                    .filter(|d| d.is_finite())
-                    .count();
+            let confirmed = confirmed_by_neighbours(disparities, geometry, i, width, height)
+                .iter()
+                .filter(|d| d.is_finite())
+                .count();
             confirmed as f64 / known as f64
         })
         .collect()
 }
 
-/// How well one view's map agrees with one row or column neighbour's.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+/// How well one view's map agrees with one neighbour's.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PairAgreement {
-    /// The neighbour.
-    pub row: usize,
-    pub col: usize,
+    /// The neighbour's name.
+    pub neighbour: String,
     /// Of the view's pixels with a disparity whose point lies inside the neighbour's frame
     /// and has a disparity there, the fraction that agree within
     /// [`LEFT_RIGHT_TOLERANCE`] (NaN: none to compare).
@@ -135,18 +114,19 @@ pub struct PairAgreement {
     pub compared: usize,
 }
 
-/// View `i`'s agreement with each of its row and column neighbours, one by one.
+/// View `i`'s agreement with each of its neighbours, one by one.
 pub fn pair_agreements(
     disparities: &[Vec<f32>],
-    positions: &[(usize, usize)],
     geometry: &ArrayGeometry,
     i: usize,
     width: usize,
     height: usize,
 ) -> Vec<PairAgreement> {
-    neighbours(positions, geometry, i)
+    geometry
+        .neighbours(i)
         .into_iter()
-        .map(|(j, shift)| {
+        .map(|j| {
+            let shift = geometry.shift(i, j);
             let (mut agreeing, mut compared) = (0usize, 0usize);
             for (p, &d) in disparities[i].iter().enumerate() {
                 let xy = ((p % width) as f64, (p / width) as f64);
@@ -160,8 +140,7 @@ pub fn pair_agreements(
                 }
             }
             PairAgreement {
-                row: positions[j].0,
-                col: positions[j].1,
+                neighbour: geometry.names[j].clone(),
                 agreeing: agreeing as f64 / compared as f64,
                 compared,
             }
@@ -179,15 +158,10 @@ mod tests {
     #[test]
     fn agreement_counts_the_pixels_a_neighbour_confirms() {
         let (w, h) = (20usize, 16usize);
-        let geometry = ArrayGeometry {
-            rows: 2,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
-        let positions = [(0, 0), (0, 1), (1, 0), (1, 1)];
+        let geometry = ArrayGeometry::grid(2, 2, 1.0);
         let plane = vec![3.0f32; w * h];
         let mut maps = vec![plane.clone(); 4];
-        let agreement = neighbour_agreement(&maps, &positions, &geometry, w, h);
+        let agreement = neighbour_agreement(&maps, &geometry, w, h);
         // View (0, 0) finds its right neighbour at x − 3 (in frame for x ≥ 3) and the one
         // below at y − 3 (y ≥ 3): only the 3×3 corner x, y < 3 has neither.
         let expected = 1.0 - 9.0 / (w * h) as f64;
@@ -200,20 +174,20 @@ mod tests {
                 maps[0][y * w + x] = 8.0;
             }
         }
-        let confirmed = confirmed_by_neighbours(&maps, &positions, &geometry, 0, w, h);
+        let confirmed = confirmed_by_neighbours(&maps, &geometry, 0, w, h);
         assert!(confirmed[7 * w + 10].is_nan());
         assert_eq!(confirmed[12 * w + 15], 3.0);
-        let agreement = neighbour_agreement(&maps, &positions, &geometry, w, h);
+        let agreement = neighbour_agreement(&maps, &geometry, w, h);
         let expected0 = 1.0 - (9.0 + 20.0) / (w * h) as f64;
         assert!((agreement[0] - expected0).abs() < 1e-12, "{}", agreement[0]);
         // Pair by pair: the right neighbour compares x ≥ 3 and disagrees on the block.
-        let pairs = pair_agreements(&maps, &positions, &geometry, 0, w, h);
+        let pairs = pair_agreements(&maps, &geometry, 0, w, h);
         assert_eq!(pairs.len(), 2);
-        let right = pairs.iter().find(|p| (p.row, p.col) == (0, 1)).unwrap();
+        let right = pairs.iter().find(|p| p.neighbour == "r0c1").unwrap();
         assert_eq!(right.compared, (w - 3) * h);
         assert!((right.agreeing - (1.0 - 20.0 / ((w - 3) * h) as f64)).abs() < 1e-12);
         // Unknown pixels count neither way; a map with none is NaN.
         maps[3] = vec![f32::NAN; w * h];
-        assert!(neighbour_agreement(&maps, &positions, &geometry, w, h)[3].is_nan());
+        assert!(neighbour_agreement(&maps, &geometry, w, h)[3].is_nan());
     }
 }

@@ -321,8 +321,6 @@ mod tests {
     #[test]
     fn images_mix_each_view_by_its_weights() {
         let view = NormalisedView {
-            row: 0,
-            col: 0,
             image: Image {
                 width: 3,
                 height: 1,

@@ -1,15 +1,17 @@
 //! Registration (paper section 3.3), the stage `stereo -> register (warp) -> demux`: one
 //! disparity map per view of a rectified array, then every capture warped to every view.
 //!
-//! **Convention.** Disparities are in pixels per column step, the simulator's truth
-//! convention: a surface point at (x, y) of view (r, c) with disparity d appears at
-//! `(x − Δc·d, y − Δr·d·b_y/b_x)` in view (r + Δr, c + Δc). One map per view therefore
-//! registers it to every other camera of the array, diagonal ones included: the paper's
-//! intermediary images (a diagonal pair reached through the camera sharing a row with one
-//! and a column with the other) become a single resampling along the array geometry.
+//! **Convention.** Disparities are in pixels per disparity baseline (a grid's horizontal
+//! baseline, so pixels per column step; a free layout's shortest camera distance), the
+//! simulator's truth convention: a surface point at (x, y) of a view at position p (in
+//! disparity baselines, [`ArrayGeometry`]) with disparity d appears at `(x, y) + d·(p − q)`
+//! in the view at q. One map per view therefore registers it to every other camera of the
+//! array, diagonal and hexagonal neighbours included: the paper's intermediary images (a
+//! diagonal pair reached through the camera sharing a row with one and a column with the
+//! other) become a single resampling along each pair's own baseline.
 //!
 //! **Modes** ([`RegistrationMode`]):
-//! - *pairwise*: each view is matched with its row neighbour and its column neighbour by
+//! - *pairwise*: each view is matched with its nearest row and column neighbours by
 //!   the heterogeneous matcher (vertical pairs by transposition, views on the right or
 //!   bottom edge by mirroring), the two maps are fused where they agree, and what neither
 //!   pair can see is filled from the background side;
@@ -25,6 +27,7 @@ mod ambiguous_planes;
 mod common_signal;
 mod compact_features;
 mod feature_projection;
+mod geometry;
 mod multi_baseline;
 mod pairwise;
 mod search_range;
@@ -41,6 +44,7 @@ pub use ambiguous_planes::{
 pub use common_signal::{
     common_signal_images, common_signals, CommonSignal, MatchingImage, COMMON_SIGNALS,
 };
+pub use geometry::ArrayGeometry;
 pub use multi_baseline::multi_baseline_disparities;
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};
@@ -49,39 +53,9 @@ pub use warp::{
     CONSISTENCY_PX,
 };
 
-use crate::rig::Rig;
 use crate::stereo::{DisparityRange, GreyImage, MatchingCost};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
-
-/// The layout of a rectified array: where each view sits and how far apart.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct ArrayGeometry {
-    pub rows: usize,
-    pub cols: usize,
-    /// Vertical over horizontal baseline, `b_y / b_x`.
-    pub baseline_ratio: f64,
-}
-
-impl ArrayGeometry {
-    pub fn of_rig(rig: &Rig) -> Self {
-        let b = rig.file.baseline_mm;
-        ArrayGeometry {
-            rows: rig.file.rows,
-            cols: rig.file.cols,
-            baseline_ratio: b.vertical / b.horizontal,
-        }
-    }
-
-    /// The shift per unit disparity of a point of view `from` seen in view `to`:
-    /// `(x_to, y_to) = (x_from, y_from) + d · shift`.
-    pub fn shift(&self, from: (usize, usize), to: (usize, usize)) -> (f64, f64) {
-        (
-            -(to.1 as f64 - from.1 as f64),
-            -(to.0 as f64 - from.0 as f64) * self.baseline_ratio,
-        )
-    }
-}
 
 /// How disparities are estimated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -103,7 +77,7 @@ pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseli
 pub struct RegistrationSettings<'a> {
     pub mode: RegistrationMode,
     pub cost: MatchingCost<'a>,
-    /// Disparities searched, per column step (signed: an array calibrated to a plane sees
+    /// Disparities searched, per disparity baseline (signed: an array calibrated to a plane sees
     /// points beyond it at negative disparities).
     pub range: DisparityRange,
 }
@@ -113,11 +87,10 @@ pub struct RegistrationSettings<'a> {
 /// radius 1 / 2 / 3 / 5 gave r0c0 28.99 / 29.07 / 29.17 / 29.28 dB, 8 no more.
 pub const SUBPIXEL_WINDOW_RADIUS: usize = 5;
 
-/// A view's grey image for matching, at its place on the grid.
+/// A view's grey image for matching (its place in the array is the [`ArrayGeometry`]'s
+/// entry of the same index).
 #[derive(Debug, Clone)]
-pub struct GridImage {
-    pub row: usize,
-    pub col: usize,
+pub struct ViewImage {
     pub image: GreyImage,
     /// The images whose learned features multi-baseline registration compares (the common
     /// signals, merged by [`feature_projection`]); empty: `image` itself. `image` stays the
@@ -172,7 +145,7 @@ pub struct Registration {
 
 /// Estimates every view's disparity map. `progress(done, total)` is called as views finish.
 pub fn register_views(
-    images: &[GridImage],
+    images: &[ViewImage],
     geometry: &ArrayGeometry,
     settings: &RegistrationSettings<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
@@ -186,49 +159,50 @@ pub fn register_views(
     }
 }
 
-fn validate(images: &[GridImage], geometry: &ArrayGeometry, range: DisparityRange) -> Result<()> {
+fn validate(images: &[ViewImage], geometry: &ArrayGeometry, range: DisparityRange) -> Result<()> {
     let Some(first) = images.first() else {
         return Err(Error::mismatch("registration", "no views", "at least one"));
     };
+    if images.len() != geometry.len() {
+        return Err(Error::Shape {
+            op: "registration: one image per view of the array".into(),
+            got: vec![images.len()],
+            expected: vec![geometry.len()],
+        });
+    }
     let (w, h) = (first.image.width, first.image.height);
-    for view in images {
+    for (view, name) in images.iter().zip(&geometry.names) {
         if view.image.width != w || view.image.height != h || view.image.data.len() != w * h {
             return Err(Error::Shape {
-                op: format!("registration: view r{}c{}", view.row, view.col),
+                op: format!("registration: view {name}"),
                 got: vec![view.image.width, view.image.height],
                 expected: vec![w, h],
             });
         }
-        if view.row >= geometry.rows || view.col >= geometry.cols {
-            return Err(Error::mismatch(
-                "registration",
-                format!("a view at r{}c{}", view.row, view.col),
-                format!(
-                    "views inside the {} x {} array",
-                    geometry.rows, geometry.cols
-                ),
-            ));
-        }
     }
-    if !(geometry.baseline_ratio.is_finite() && geometry.baseline_ratio > 0.0) {
-        return Err(Error::out_of_range(
-            "registration: baseline ratio",
-            geometry.baseline_ratio,
-            "finite and > 0",
+    if let Some(p) = geometry
+        .positions
+        .iter()
+        .find(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return Err(Error::mismatch(
+            "registration",
+            format!("a view at [{}, {}]", p[0], p[1]),
+            "finite positions",
         ));
     }
     check_search_range(range, geometry, w, h)
 }
 
-/// Checks that `range` has at least two disparities and that its largest shift, along
-/// the longer baseline, stays inside views of `w × h`.
+/// Checks that `range` has at least two disparities and that its largest shift between
+/// neighbours, along the longer baseline, stays inside views of `w × h`.
 pub fn check_search_range(
     range: DisparityRange,
     geometry: &ArrayGeometry,
     w: usize,
     h: usize,
 ) -> Result<()> {
-    let longest = (range.magnitude() as f64 * geometry.baseline_ratio.max(1.0)).ceil() as usize;
+    let longest = (range.magnitude() as f64 * geometry.longest_neighbour_shift()).ceil() as usize;
     if range.count() < 2 || longest >= w.min(h) {
         return Err(Error::mismatch(
             "search range",
@@ -240,11 +214,6 @@ pub fn check_search_range(
         ));
     }
     Ok(())
-}
-
-/// Index of the view at (row, col).
-fn find(images: &[GridImage], row: usize, col: usize) -> Option<usize> {
-    images.iter().position(|v| v.row == row && v.col == col)
 }
 
 /// Fills NaN pixels from the background side: the smaller of the nearest valid
@@ -414,19 +383,6 @@ pub fn smooth_within_surfaces(disparity: &[f32], width: usize, height: usize) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn shift_follows_the_array_geometry() {
-        let g = ArrayGeometry {
-            rows: 2,
-            cols: 4,
-            baseline_ratio: 5.0 / 3.0,
-        };
-        assert_eq!(g.shift((0, 0), (0, 1)), (-1.0, 0.0));
-        let (dx, dy) = g.shift((1, 3), (0, 1));
-        assert_eq!(dx, 2.0);
-        assert!((dy - 5.0 / 3.0).abs() < 1e-12);
-    }
 
     #[test]
     fn surface_smoothing_removes_noise_and_keeps_depth_edges() {

@@ -1,15 +1,13 @@
-//! Pairwise registration: each view matched with one row neighbour and one column
-//! neighbour by [`match_pair`] / [`match_vertical`] (left–right checked, failures NaN);
-//! the two maps, in column-step units, are averaged where they agree within
+//! Pairwise registration: each view matched with its nearest row neighbour and nearest
+//! column neighbour by [`match_pair`] / [`match_vertical`] (left–right checked, failures
+//! NaN); the two maps, in disparity-baseline units, are averaged where they agree within
 //! [`FUSION_TOLERANCE_PX`], either one is kept where only it is valid, and what is left is
 //! filled from the background side.
 
 use super::RegistrationSettings;
-use super::{
-    fill_from_background, find, ArrayGeometry, GridImage, Registration, SUBPIXEL_WINDOW_RADIUS,
-};
+use super::{fill_from_background, ArrayGeometry, Registration, ViewImage, SUBPIXEL_WINDOW_RADIUS};
 use crate::stereo::{match_pair, match_vertical, GreyImage, LeftRight, MatchSettings};
-use crate::Result;
+use crate::{Error, Result};
 use std::time::Instant;
 
 /// Largest difference (px per column step) between the row and the column estimate that
@@ -54,78 +52,48 @@ fn with_data(like: &GreyImage, data: Vec<f32>) -> GreyImage {
     }
 }
 
-/// Disparities of view `i` against its row neighbour (column-step units), NaN where the
-/// left–right check fails; None without a row neighbour.
-fn along_row(
-    images: &[GridImage],
-    i: usize,
-    settings: &RegistrationSettings<'_>,
-) -> Result<Option<Vec<f32>>> {
-    let view = &images[i];
-    let chain = MatchSettings {
-        left_right: LeftRight::Check,
-        subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
-        ..MatchSettings::for_cost(&settings.cost, settings.range)
-    };
-    if let Some(j) = find(images, view.row, view.col + 1) {
-        let out = match_pair(&view.image, &images[j].image, &settings.cost, &chain)?;
-        return Ok(Some(out.disparity.into_column_step()?.data));
-    }
-    if let Some(j) = view
-        .col
-        .checked_sub(1)
-        .and_then(|c| find(images, view.row, c))
-    {
-        // Mirrored, the left neighbour becomes a right one.
-        let out = match_pair(
-            &mirror(&view.image),
-            &mirror(&images[j].image),
-            &settings.cost,
-            &chain,
-        )?;
-        return Ok(Some(
-            mirror(&with_data(&view.image, out.disparity.data)).data,
-        ));
-    }
-    Ok(None)
-}
-
-/// Disparities of view `i` against its column neighbour, converted to column-step units;
-/// None without a column neighbour.
-fn along_column(
-    images: &[GridImage],
-    i: usize,
+/// Disparities of view `i` against its nearest row neighbour (`vertical` false) or column
+/// neighbour (true), in disparity-baseline units, NaN where the left–right check fails;
+/// None without such a neighbour. A neighbour on the left or above is matched mirrored
+/// or flipped, so that it becomes one on the right or below.
+fn along_line(
+    images: &[ViewImage],
     geometry: &ArrayGeometry,
+    i: usize,
+    vertical: bool,
     settings: &RegistrationSettings<'_>,
 ) -> Result<Option<Vec<f32>>> {
-    let view = &images[i];
-    let ratio = geometry.baseline_ratio;
+    let (forward, found) = match geometry.nearest_along(i, vertical, true) {
+        Some(found) => (true, found),
+        None => match geometry.nearest_along(i, vertical, false) {
+            Some(found) => (false, found),
+            None => return Ok(None),
+        },
+    };
+    let (j, step) = found;
     let chain = MatchSettings {
         left_right: LeftRight::Check,
         subpixel_window: Some(SUBPIXEL_WINDOW_RADIUS),
-        ..MatchSettings::for_cost(&settings.cost, settings.range.scaled(ratio))
+        ..MatchSettings::for_cost(&settings.cost, settings.range.scaled(step))
     };
-    let to_columns = |d: Vec<f32>| d.into_iter().map(|v| (v as f64 / ratio) as f32).collect();
-    if let Some(j) = find(images, view.row + 1, view.col) {
-        let out = match_vertical(&view.image, &images[j].image, &settings.cost, &chain)?;
-        return Ok(Some(to_columns(out.disparity.data)));
-    }
-    if let Some(j) = view
-        .row
-        .checked_sub(1)
-        .and_then(|r| find(images, r, view.col))
-    {
-        let out = match_vertical(
-            &flip(&view.image),
-            &flip(&images[j].image),
-            &settings.cost,
-            &chain,
-        )?;
-        return Ok(Some(to_columns(
-            flip(&with_data(&view.image, out.disparity.data)).data,
-        )));
-    }
-    Ok(None)
+    let turn: fn(&GreyImage) -> GreyImage = match (forward, vertical) {
+        (true, _) => GreyImage::clone,
+        (false, false) => mirror,
+        (false, true) => flip,
+    };
+    let (me, other) = (turn(&images[i].image), turn(&images[j].image));
+    let out = if vertical {
+        match_vertical(&me, &other, &settings.cost, &chain)?
+    } else {
+        match_pair(&me, &other, &settings.cost, &chain)?
+    };
+    let disparity = turn(&with_data(&images[i].image, out.disparity.data)).data;
+    Ok(Some(
+        disparity
+            .into_iter()
+            .map(|d| (d as f64 / step) as f32)
+            .collect(),
+    ))
 }
 
 /// Fuses a row and a column estimate (see the module docs).
@@ -149,20 +117,37 @@ pub fn fuse(row: Option<Vec<f32>>, column: Option<Vec<f32>>, pixels: usize) -> V
 
 /// Pairwise registration of every view (see the module docs).
 pub fn pairwise_disparities(
-    images: &[GridImage],
+    images: &[ViewImage],
     geometry: &ArrayGeometry,
     settings: &RegistrationSettings<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
+    let alone = (0..images.len()).find(|&i| {
+        [false, true].iter().all(|&vertical| {
+            geometry.nearest_along(i, vertical, true).is_none()
+                && geometry.nearest_along(i, vertical, false).is_none()
+        })
+    });
+    if let Some(i) = alone {
+        return Err(Error::mismatch(
+            "pairwise registration",
+            format!(
+                "camera {} with no other camera on its row or column",
+                geometry.names[i]
+            ),
+            "a row or column neighbour for every camera (multi-baseline registration takes \
+             any layout)",
+        ));
+    }
     let (w, h) = (images[0].image.width, images[0].image.height);
     let mut disparities = Vec::with_capacity(images.len());
     let (mut row_seconds, mut column_seconds) = (0.0, 0.0);
     for i in 0..images.len() {
         let clock = Instant::now();
-        let row = along_row(images, i, settings)?;
+        let row = along_line(images, geometry, i, false, settings)?;
         row_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let column = along_column(images, i, geometry, settings)?;
+        let column = along_line(images, geometry, i, true, settings)?;
         column_seconds += clock.elapsed().as_secs_f64();
         let mut fused = fuse(row, column, w * h);
         fill_from_background(&mut fused, w);
@@ -209,5 +194,41 @@ mod tests {
         assert!(fused[1].is_nan());
         assert_eq!(fused[2], 3.0);
         assert!(fused[3].is_nan());
+    }
+
+    /// A triangle's apex has no camera on its row or column: pairwise registration names it
+    /// instead of leaving its map empty.
+    #[test]
+    fn a_camera_without_row_or_column_neighbour_is_refused() {
+        let geometry = ArrayGeometry {
+            names: vec!["left".into(), "right".into(), "apex".into()],
+            positions: vec![[0.0, 0.0], [1.0, 0.0], [0.5, 0.866]],
+        };
+        let image = GreyImage {
+            channels: 1,
+            width: 32,
+            height: 24,
+            data: vec![0.5; 32 * 24],
+        };
+        let images = vec![
+            ViewImage {
+                image,
+                matching: Vec::new(),
+                measured: None,
+            };
+            3
+        ];
+        let settings = RegistrationSettings {
+            mode: super::super::RegistrationMode::Pairwise,
+            cost: crate::stereo::MatchingCost::Census,
+            range: crate::stereo::DisparityRange::up_to(4).unwrap(),
+        };
+        let error = pairwise_disparities(&images, &geometry, &settings, &|_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("camera apex with no other camera"),
+            "{error}"
+        );
     }
 }

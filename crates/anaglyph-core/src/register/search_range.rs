@@ -3,13 +3,13 @@
 //! downsampled 2× or 4× over the widest range at which the outermost views still overlap
 //! (signed: a third of it below zero, for arrays calibrated to a plane), and the 2nd and
 //! 98th percentiles of those disparities, scaled back with a margin, become the
-//! full-resolution range, from the views inside the array ([`interior_views`]) and only
+//! full-resolution range, from the views inside the array ([`ArrayGeometry::interior_views`]) and only
 //! where another view's map confirms them. The range starts at 0 unless the coarse
 //! disparities reach below −0.5 coarse pixel, so an array rectified to infinity is searched
 //! from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
-use super::{register_views, ArrayGeometry, GridImage, RegistrationSettings};
+use super::{register_views, ArrayGeometry, RegistrationSettings, ViewImage};
 use crate::stereo::{DisparityRange, GreyImage};
 use crate::{Error, Result};
 use serde::Serialize;
@@ -52,7 +52,7 @@ pub struct SearchRange {
 
 /// Box-averages `image` by `factor` (and its measured mask: a coarse pixel is measured only
 /// if all its fine pixels are).
-fn downsample(view: &GridImage, factor: usize) -> GridImage {
+fn downsample(view: &ViewImage, factor: usize) -> ViewImage {
     let (w, h) = (view.image.width / factor, view.image.height / factor);
     let fine_w = view.image.width;
     let mut data = Vec::with_capacity(w * h);
@@ -75,9 +75,7 @@ fn downsample(view: &GridImage, factor: usize) -> GridImage {
             }
         }
     }
-    GridImage {
-        row: view.row,
-        col: view.col,
+    ViewImage {
         image: GreyImage {
             channels: 1,
             width: w,
@@ -92,7 +90,7 @@ fn downsample(view: &GridImage, factor: usize) -> GridImage {
 /// Estimates the search range of `images` (see the module docs) with the registration
 /// `settings` (their `max_disp` is ignored).
 pub fn estimate_search_range(
-    images: &[GridImage],
+    images: &[ViewImage],
     geometry: &ArrayGeometry,
     settings: &RegistrationSettings<'_>,
 ) -> Result<SearchRange> {
@@ -101,15 +99,15 @@ pub fn estimate_search_range(
         return Err(Error::mismatch("search range", "no views", "at least one"));
     };
     let (w, h) = (first.image.width, first.image.height);
-    let span = geometry.cols.saturating_sub(1).max(1);
+    let span = geometry.extent()[0].max(1.0);
     let factor = match w.min(h) {
         s if s >= 400 => 4,
         s if s >= 120 => 2,
         _ => 1,
     };
-    let coarse: Vec<GridImage> = images.iter().map(|v| downsample(v, factor)).collect();
+    let coarse: Vec<ViewImage> = images.iter().map(|v| downsample(v, factor)).collect();
     let coarse_w = w / factor;
-    let coarse_max = (coarse_w / span).clamp(4, MAX_COARSE_DISPARITY);
+    let coarse_max = ((coarse_w as f64 / span) as usize).clamp(4, MAX_COARSE_DISPARITY);
     let coarse_range =
         DisparityRange::new(-((coarse_max / NEGATIVE_SHARE) as i32), coarse_max as i32)?;
     if coarse_w < 16 || h / factor < 16 {
@@ -128,7 +126,13 @@ pub fn estimate_search_range(
         },
         &|_, _| {},
     )?;
-    let interior = interior_views(&coarse, geometry);
+    // An outer view's pixels near its outer edge see other views on one side only, and
+    // their coarse multi-view costs favour disparities where fewer, spectrally closer views
+    // overlap: on a simulated 3×3 narrow-band array at 800×600, a quarter of every outer
+    // view's coarse disparities sat at 68 coarse px (4×) while the truth spans −2.3 to 2.2,
+    // and the range became −19:307 instead of −12:12; the centre view alone gave the right
+    // range.
+    let interior = geometry.interior_views();
     let mut values: Vec<f32> = interior
         .iter()
         .flat_map(|&v| agreeing_disparities(&coarse, &registration.disparities, geometry, v))
@@ -145,7 +149,7 @@ pub fn estimate_search_range(
     // Points beyond a calibration plane may be few: the sign is decided further out.
     let low = low.min(quantile(NEGATIVE_QUANTILE));
     let f = factor as f64;
-    let widest = (w / span).max(4) as i32;
+    let widest = ((w as f64 / span) as i32).max(4);
     let max = ((high.max(0.0) * f * MARGIN).ceil() as i32 + 2 * factor as i32).clamp(4, widest);
     let min = if low < -NEGATIVE_EVIDENCE_PX {
         ((low * f * MARGIN).floor() as i32 - 2 * factor as i32).max(-widest)
@@ -165,25 +169,6 @@ pub fn estimate_search_range(
 /// gives the point it matches for the two to agree.
 const AGREEMENT_PX: f32 = 1.0;
 
-/// The views that have neighbours on both sides along every dimension of the array with
-/// three or more views (all views when there is none). An outer view's pixels near its
-/// outer edge see other views on one side only, and their coarse multi-view costs favour
-/// disparities where fewer, spectrally closer views overlap: on a simulated 3×3
-/// narrow-band array at 800×600, a quarter of every outer view's coarse disparities sat at
-/// 68 coarse px (4×) while the truth spans −2.3 to 2.2, and the range became −19:307
-/// instead of −12:12; the centre view alone gave the right range.
-fn interior_views(views: &[GridImage], geometry: &ArrayGeometry) -> Vec<usize> {
-    let inside = |i: usize, n: usize| n < 3 || (i > 0 && i + 1 < n);
-    let interior: Vec<usize> = (0..views.len())
-        .filter(|&v| inside(views[v].row, geometry.rows) && inside(views[v].col, geometry.cols))
-        .collect();
-    if interior.is_empty() {
-        (0..views.len()).collect()
-    } else {
-        interior
-    }
-}
-
 /// View `v`'s finite disparities of `maps` (one per view of `views`) at pixels that its own
 /// view measures and whose match in some other view is measured there and agrees
 /// (within [`AGREEMENT_PX`]). A pixel without one has only SGM's propagated guess or a
@@ -191,7 +176,7 @@ fn interior_views(views: &[GridImage], geometry: &ArrayGeometry) -> Vec<usize> {
 /// leaves the margins of shifted cameras unmeasured, such guesses widened the true −5:5
 /// to −22:30 (and cost 1 dB); with the check it is −10:11.
 fn agreeing_disparities(
-    views: &[GridImage],
+    views: &[ViewImage],
     maps: &[Vec<f32>],
     geometry: &ArrayGeometry,
     v: usize,
@@ -210,10 +195,10 @@ fn agreeing_disparities(
             .is_none_or(|m| m[i])
             .then_some(maps[j][i])
     };
-    let (row, col, w) = (views[v].row, views[v].col, views[v].image.width);
+    let w = views[v].image.width;
     let shifts: Vec<(usize, (f64, f64))> = (0..views.len())
         .filter(|&j| j != v)
-        .map(|j| (j, geometry.shift((row, col), (views[j].row, views[j].col))))
+        .map(|j| (j, geometry.shift(v, j)))
         .collect();
     let needed = shifts.len().min(2);
     let agrees = |x: f64, y: f64, d: f32| {
@@ -240,9 +225,7 @@ mod tests {
 
     #[test]
     fn downsampling_averages_and_keeps_unmeasured_pixels_unmeasured() {
-        let view = GridImage {
-            row: 0,
-            col: 1,
+        let view = ViewImage {
             image: GreyImage {
                 channels: 1,
                 width: 4,

@@ -61,8 +61,6 @@ const MAX_CHANNELS: usize = 8;
 /// A capture in the sensing matrix's units (white-calibrated), NaN where unusable.
 #[derive(Debug, Clone)]
 pub struct NormalisedView {
-    pub row: usize,
-    pub col: usize,
     pub image: Image<f32>,
 }
 
@@ -117,24 +115,25 @@ pub struct Gathered {
 fn check_sizes(
     views: &[NormalisedView],
     disparities: &[Vec<f32>],
+    geometry: &ArrayGeometry,
     me: &NormalisedView,
 ) -> Result<()> {
     let (w, h) = (me.image.width, me.image.height);
-    if disparities.len() != views.len() {
+    if disparities.len() != views.len() || geometry.len() != views.len() {
         return Err(Error::Shape {
             op: "warping: disparity maps".into(),
-            got: vec![disparities.len()],
-            expected: vec![views.len()],
+            got: vec![disparities.len(), geometry.len()],
+            expected: vec![views.len(); 2],
         });
     }
-    for (v, d) in views.iter().zip(disparities) {
+    for ((v, d), name) in views.iter().zip(disparities).zip(&geometry.names) {
         if v.image.width != w
             || v.image.height != h
             || v.image.data.len() != w * h * v.image.channels
             || d.len() != w * h
         {
             return Err(Error::Shape {
-                op: format!("warping: view r{}c{}", v.row, v.col),
+                op: format!("warping: view {name}"),
                 got: vec![v.image.width, v.image.height, v.image.channels, d.len()],
                 expected: vec![w, h, v.image.channels, w * h],
             });
@@ -216,14 +215,13 @@ pub fn gather_measurements(
             available: format!("views 0 to {}", views.len().saturating_sub(1)),
         });
     };
-    check_sizes(views, disparities, me)?;
+    check_sizes(views, disparities, geometry, me)?;
     let (w, h) = (me.image.width, me.image.height);
     let rows: usize = views.iter().map(|v| v.image.channels).sum();
     let cameras = views.len();
     let depth_order = admission == Admission::DepthOrder;
-    let shifts: Vec<(f64, f64)> = views
-        .iter()
-        .map(|v| geometry.shift((me.row, me.col), (v.row, v.col)))
+    let shifts: Vec<(f64, f64)> = (0..views.len())
+        .map(|v| geometry.shift(reference, v))
         .collect();
     let own = &disparities[reference];
     let nearest: Vec<Vec<f32>> = shifts
@@ -644,11 +642,7 @@ mod tests {
     #[test]
     fn warping_restores_values_and_masks_occlusions() {
         let (w, h) = (40usize, 8usize);
-        let geometry = ArrayGeometry {
-            rows: 1,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(1, 2, 1.0);
         // Reference disparity: the square covers x in 20..26.
         let left_d: Vec<f32> = (0..w * h)
             .map(|i| {
@@ -683,8 +677,6 @@ mod tests {
             .collect();
         let views = vec![
             NormalisedView {
-                row: 0,
-                col: 0,
                 image: Image {
                     width: w,
                     height: h,
@@ -693,8 +685,6 @@ mod tests {
                 },
             },
             NormalisedView {
-                row: 0,
-                col: 1,
                 image: Image {
                     width: w,
                     height: h,
@@ -737,11 +727,7 @@ mod tests {
     #[test]
     fn a_fine_texture_is_warped_without_losing_its_contrast() {
         let (w, h) = (48usize, 40usize);
-        let geometry = ArrayGeometry {
-            rows: 2,
-            cols: 2,
-            baseline_ratio: 1.3,
-        };
+        let geometry = ArrayGeometry::grid(2, 2, 1.3);
         let d = 2.37f32;
         let texture = |x: f32, y: f32| {
             0.5 + 0.2 * (std::f32::consts::TAU * x / 5.0).sin()
@@ -751,8 +737,6 @@ mod tests {
             .map(|k| {
                 let (r, c) = (k / 2, k % 2);
                 NormalisedView {
-                    row: r,
-                    col: c,
                     // View (r, c) sees the reference's (x, y) at (x − c·d, y − r·d·1.3).
                     image: Image {
                         width: w,
@@ -795,7 +779,7 @@ mod tests {
                 for v in 1..4 {
                     let got = gathered.measurements[(y * w + x) * 4 + v];
                     worst = worst.max((got - truth).abs());
-                    let (sx, sy) = geometry.shift((0, 0), (views[v].row, views[v].col));
+                    let (sx, sy) = geometry.shift(0, v);
                     let mut bilinear = [0f32];
                     sample(
                         &views[v],
@@ -882,21 +866,14 @@ mod tests {
     /// x in 10..14: the right camera's measurements of the reference.
     fn disagreeing_maps(left_data: Vec<f32>, right_data: Vec<f32>) -> Vec<f32> {
         let (w, h) = (30usize, 1usize);
-        let geometry = ArrayGeometry {
-            rows: 1,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(1, 2, 1.0);
         let left_d = vec![2.0f32; w * h];
         let right_d: Vec<f32> = (0..w)
             .map(|x| if (10..14).contains(&x) { 5.0 } else { 2.0 })
             .collect();
         let views: Vec<NormalisedView> = [left_data, right_data]
             .into_iter()
-            .enumerate()
-            .map(|(col, data)| NormalisedView {
-                row: 0,
-                col,
+            .map(|data| NormalisedView {
                 image: Image {
                     width: w,
                     height: h,
@@ -960,8 +937,6 @@ mod tests {
             .collect();
         let views = vec![
             NormalisedView {
-                row: 0,
-                col: 0,
                 image: Image {
                     width: w,
                     height: 1,
@@ -970,8 +945,6 @@ mod tests {
                 },
             },
             NormalisedView {
-                row: 0,
-                col: 1,
                 image: Image {
                     width: w,
                     height: 1,
@@ -988,11 +961,7 @@ mod tests {
     fn the_depth_order_admits_a_period_off_map_as_disputed_but_not_a_hidden_occluder() {
         let (views, maps) = periodic_plane_and_a_hidden_object();
         let w = views[0].image.width;
-        let geometry = ArrayGeometry {
-            rows: 1,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(1, 2, 1.0);
         let strict = gather_measurements(
             0,
             &views,

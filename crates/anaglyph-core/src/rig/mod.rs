@@ -3,14 +3,16 @@
 //! and the sensing matrix C of Eqs. 2–3 that maps a spectrum to the array's 3M
 //! measurements, built so that it accounts for all the light the cameras integrate.
 
+mod layout;
 mod response_plot;
 mod rig_file;
 mod sensing;
 
+pub use layout::{MAX_FREE_CAMERAS, MAX_NEIGHBOUR_SPACING};
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
     curve_file, resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,
-    BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE, PAPER_RIG_FILTERS,
+    BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE, PAPER_RIG, PAPER_RIG_FILTERS, RIG_PRESETS,
 };
 pub use sensing::{
     condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,

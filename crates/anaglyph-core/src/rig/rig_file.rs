@@ -1,8 +1,9 @@
 //! The rig file: a TOML description of the array that users write by hand or with
 //! `anaglyph rig init`. Curves are named `builtin:<name>` or by a CSV path relative to
-//! the rig file. Loading resolves every curve and validates the whole rig (grid complete
-//! and without duplicates, positive geometry, curves covering the sensor support).
+//! the rig file. Loading resolves every curve and validates the whole rig (the layout,
+//! [`super::layout`]; positive geometry; curves covering the sensor support).
 
+use super::layout::{disparity_baseline_mm, place_cameras, reference_index};
 use super::OutOfBand;
 use crate::spectrum::{Interpolation, ResponseCurve, SpectralShape};
 use crate::{builtin, io::write_atomically, Error, Result};
@@ -29,6 +30,19 @@ pub const PAPER_RIG_FILTERS: [&str; 8] = [
     "gel_yellow_green",
     "gel_emerald",
 ];
+/// The rig presets besides the paper's (`anaglyph simulate --rig <name>`), as TOML.
+pub const RIG_PRESETS: &[(&str, &str)] = &[
+    (
+        "mono-3x3",
+        include_str!("../../../../data/rigs/mono-3x3.toml"),
+    ),
+    (
+        "hexagon-7",
+        include_str!("../../../../data/rigs/hexagon-7.toml"),
+    ),
+];
+/// The name of the paper's 2×4 rig among the presets ([`Rig::preset`]).
+pub const PAPER_RIG: &str = "paper-2x4";
 /// Largest rig file read.
 const MAX_RIG_FILE_BYTES: u64 = 1 << 20;
 
@@ -78,8 +92,23 @@ impl Default for ReconstructionSettings {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraEntry {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (file names of its captures and outputs); default `r<row>c<col>`
+    /// on a grid, `cam<k>` for the k-th camera given by position.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Grid row (with the rig's `rows`, `cols` and `baseline_mm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub row: Option<usize>,
+    /// Grid column.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub col: Option<usize>,
+    /// Optical centre in the array's plane, mm, x right and y down seen from behind the
+    /// array: any layout (hexagons, irregular), instead of `row` and `col`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_mm: Option<[f64; 2]>,
+    /// The camera the array is calibrated to (default: the first camera).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub reference: bool,
     /// Filter transmission curve reference.
     pub filter: String,
     /// Sensor override for this camera (default: the rig's sensor).
@@ -116,9 +145,15 @@ pub struct CameraEntry {
 #[serde(deny_unknown_fields)]
 pub struct RigFile {
     pub name: String,
-    pub rows: usize,
-    pub cols: usize,
-    pub baseline_mm: Baseline,
+    /// Rows of a grid layout (cameras with `row` and `col`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<usize>,
+    /// Columns of a grid layout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cols: Option<usize>,
+    /// Spacing of a grid layout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline_mm: Option<Baseline>,
     pub focal_length_px: f64,
     /// Sensor curve reference (1 channel: monochrome; 3: RGB).
     pub sensor: String,
@@ -147,8 +182,12 @@ fn default_sensor_interpolation() -> Interpolation {
 /// A camera with its curves resolved.
 #[derive(Debug, Clone)]
 pub struct Camera {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name: `<name>.png` in capture folders, `<name>.hdr` in outputs.
+    pub name: String,
+    /// Optical centre in the array's plane, mm: x right, y down, seen from behind.
+    pub position_mm: [f64; 2],
+    /// Index of its `[[camera]]` entry in the rig file.
+    pub entry: usize,
     pub filter: ResponseCurve,
     pub sensor: ResponseCurve,
     pub image: Option<PathBuf>,
@@ -163,7 +202,8 @@ pub struct Camera {
     pub dark: Option<PathBuf>,
 }
 
-/// A loaded, validated rig: cameras in row-major order.
+/// A loaded, validated rig: cameras in rig order (a grid row-major, free positions in
+/// file order).
 #[derive(Debug, Clone)]
 pub struct Rig {
     pub file: RigFile,
@@ -171,6 +211,11 @@ pub struct Rig {
     pub base_dir: PathBuf,
     pub cameras: Vec<Camera>,
     pub illuminant: Option<ResponseCurve>,
+    /// The camera the array is calibrated to (`reference = true`, else the first).
+    pub reference: usize,
+    /// Disparities are pixels per this distance between cameras, mm: the horizontal
+    /// baseline of a grid, the shortest distance between two cameras of a free layout.
+    pub disparity_baseline_mm: f64,
 }
 
 /// Loads a curve reference: `builtin:<name>`, a nominal narrow-band filter
@@ -211,7 +256,7 @@ impl RigFile {
 
     /// TOML text with a comment header.
     pub fn to_toml_string(&self) -> Result<String> {
-        let body = toml::to_string_pretty(self).map_err(|e| Error::output("rig file", e))?;
+        let body = toml::to_string(self).map_err(|e| Error::output("rig file", e))?;
         Ok(format!(
             "# anaglyph rig file: geometry, curves and reconstruction grid of a filtered camera array.\n\
              # Curves are 'builtin:<name>' or CSV paths (wavelength_nm,...) relative to this file.\n{body}"
@@ -233,26 +278,6 @@ impl RigFile {
                 expected,
             ))
         };
-        if self.rows == 0 || self.cols == 0 || self.rows > MAX_RIG_SIDE || self.cols > MAX_RIG_SIDE
-        {
-            return Err(Error::mismatch(
-                &rig,
-                format!("{} x {} cameras", self.rows, self.cols),
-                format!("1 to {MAX_RIG_SIDE} per side"),
-            ));
-        }
-        let b = self.baseline_mm;
-        if !(b.horizontal.is_finite()
-            && b.vertical.is_finite()
-            && b.horizontal > 0.0
-            && b.vertical > 0.0)
-        {
-            return Err(Error::mismatch(
-                &rig,
-                format!("baseline {} x {} mm", b.horizontal, b.vertical),
-                "positive, finite baselines",
-            ));
-        }
         if !(self.focal_length_px.is_finite() && self.focal_length_px > 0.0) {
             return range(
                 "focal length (px)",
@@ -277,19 +302,18 @@ impl RigFile {
                 &format!("1 to {MAX_BANDS} bands"),
             );
         }
-        let mut seen = vec![false; self.rows * self.cols];
         for cam in &self.cameras {
-            if cam.row >= self.rows || cam.col >= self.cols {
-                return Err(Error::mismatch(
-                    &rig,
-                    format!("a camera at row {} col {}", cam.row, cam.col),
-                    format!("cameras inside the {} x {} grid", self.rows, self.cols),
-                ));
-            }
+            let name = cam
+                .name
+                .clone()
+                .unwrap_or_else(|| match (cam.row, cam.col) {
+                    (Some(r), Some(c)) => format!("r{r}c{c}"),
+                    _ => "given by position_mm".into(),
+                });
             if let Some(b) = cam.black_level {
                 if !(b.is_finite() && b >= 0.0) {
                     return range(
-                        &format!("camera r{}c{} black_level", cam.row, cam.col),
+                        &format!("camera {name} black_level"),
                         b,
                         "finite and >= 0, in the capture file's units",
                     );
@@ -297,29 +321,9 @@ impl RigFile {
             }
             if let Some(e) = cam.exposure {
                 if !(e.is_finite() && e > 0.0) {
-                    return range(
-                        &format!("camera r{}c{} exposure", cam.row, cam.col),
-                        e,
-                        "positive and finite",
-                    );
+                    return range(&format!("camera {name} exposure"), e, "positive and finite");
                 }
             }
-            let i = cam.row * self.cols + cam.col;
-            if seen[i] {
-                return Err(Error::mismatch(
-                    &rig,
-                    format!("two cameras at row {} col {}", cam.row, cam.col),
-                    "one camera per grid position",
-                ));
-            }
-            seen[i] = true;
-        }
-        if let Some(i) = seen.iter().position(|s| !s) {
-            return Err(Error::mismatch(
-                &rig,
-                format!("no camera at row {} col {}", i / self.cols, i % self.cols),
-                "one camera per grid position",
-            ));
         }
         Ok(())
     }
@@ -345,19 +349,39 @@ impl Rig {
         Self::from_file(file, base)
     }
 
+    /// A preset: [`PAPER_RIG`] (the paper's rig with [`PAPER_RIG_FILTERS`]) or one of
+    /// [`RIG_PRESETS`]; their curves are all built in.
+    pub fn preset(name: &str) -> Result<Self> {
+        if name == PAPER_RIG {
+            return Self::from_file(Self::paper_rig_file(&PAPER_RIG_FILTERS), ".".into());
+        }
+        let (_, text) = RIG_PRESETS
+            .iter()
+            .find(|(k, _)| *k == name)
+            .ok_or_else(|| Error::NotFound {
+                what: "rig preset".into(),
+                name: name.to_string(),
+                available: std::iter::once(PAPER_RIG)
+                    .chain(RIG_PRESETS.iter().map(|(k, _)| *k))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
+        Self::from_file(RigFile::from_toml_str(text, name)?, ".".into())
+    }
+
     /// Resolves and validates an in-memory rig file.
     pub fn from_file(file: RigFile, base_dir: PathBuf) -> Result<Self> {
         file.validate()?;
+        let placements = place_cameras(&file)?;
         let rig_sensor = resolve_curve(&file.sensor, &base_dir)?;
         let illuminant = file
             .illuminant
             .as_deref()
             .map(|r| resolve_curve(r, &base_dir))
             .transpose()?;
-        let mut entries = file.cameras.clone();
-        entries.sort_by_key(|c| (c.row, c.col));
-        let mut cameras = Vec::with_capacity(entries.len());
-        for e in entries {
+        let mut cameras = Vec::with_capacity(placements.len());
+        for placement in &placements {
+            let e = &file.cameras[placement.entry];
             let sensor = match &e.sensor {
                 Some(r) => resolve_curve(r, &base_dir)?,
                 None => rig_sensor.clone(),
@@ -385,8 +409,9 @@ impl Rig {
             // An absolute path replaces `base_dir`.
             let resolve_path = |p: &Option<PathBuf>| p.as_ref().map(|p| base_dir.join(p));
             cameras.push(Camera {
-                row: e.row,
-                col: e.col,
+                name: placement.name.clone(),
+                position_mm: placement.position_mm,
+                entry: placement.entry,
                 image: resolve_path(&e.image),
                 white: resolve_path(&e.white),
                 exposure: e.exposure,
@@ -398,6 +423,8 @@ impl Rig {
             });
         }
         let rig = Rig {
+            reference: reference_index(&file, &placements),
+            disparity_baseline_mm: disparity_baseline_mm(&file, &placements),
             file,
             base_dir,
             cameras,
@@ -411,6 +438,23 @@ impl Rig {
     pub fn reconstruction_shape(&self) -> Result<SpectralShape> {
         let r = &self.file.reconstruction;
         SpectralShape::new(r.start_nm, r.step_nm, r.count)
+    }
+
+    /// The index (rig order) of the camera named `name`.
+    pub fn camera_index(&self, name: &str) -> Result<usize> {
+        self.cameras
+            .iter()
+            .position(|c| c.name == name)
+            .ok_or_else(|| Error::NotFound {
+                what: "camera".into(),
+                name: name.to_string(),
+                available: self
+                    .cameras
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })
     }
 
     /// Total number of camera channels (rows of C).
@@ -434,8 +478,11 @@ impl Rig {
             .iter()
             .enumerate()
             .map(|(i, f)| CameraEntry {
-                row: i / 4,
-                col: i % 4,
+                name: None,
+                row: Some(i / 4),
+                col: Some(i % 4),
+                position_mm: None,
+                reference: false,
                 filter: format!("{BUILTIN_PREFIX}{f}"),
                 sensor: None,
                 image: None,
@@ -447,13 +494,13 @@ impl Rig {
             })
             .collect();
         RigFile {
-            name: "paper-2x4".into(),
-            rows: 2,
-            cols: 4,
-            baseline_mm: Baseline {
+            name: PAPER_RIG.into(),
+            rows: Some(2),
+            cols: Some(4),
+            baseline_mm: Some(Baseline {
                 horizontal: 30.0,
                 vertical: 50.0,
-            },
+            }),
             focal_length_px: 1800.0,
             sensor: format!("{BUILTIN_PREFIX}canon_eos_5d_mark_ii"),
             sensor_interpolation: Interpolation::CubicSpline,
@@ -489,14 +536,30 @@ mod tests {
         let rig = Rig::load(&path).unwrap();
         assert_eq!(rig.file, file);
         assert_eq!(rig.channel_count(), 24);
-        assert_eq!(rig.cameras[5].row, 1);
-        assert_eq!(rig.cameras[5].col, 1);
+        assert_eq!(rig.cameras[5].name, "r1c1");
+        assert_eq!(rig.cameras[5].position_mm, [30.0, 50.0]);
+        assert_eq!((rig.reference, rig.disparity_baseline_mm), (0, 30.0));
+    }
+
+    #[test]
+    fn every_preset_loads_with_its_reference() {
+        let paper = Rig::preset(PAPER_RIG).unwrap();
+        assert_eq!((paper.cameras.len(), paper.reference), (8, 0));
+        let grid = Rig::preset("mono-3x3").unwrap();
+        assert_eq!(grid.cameras[grid.reference].name, "r1c1");
+        assert_eq!(grid.cameras[grid.reference].position_mm, [0.0, 0.0]);
+        assert_eq!(grid.channel_count(), 9);
+        let hexagon = Rig::preset("hexagon-7").unwrap();
+        assert_eq!(hexagon.cameras[hexagon.reference].name, "nb440");
+        assert!((hexagon.disparity_baseline_mm - 40.0).abs() < 1e-3);
+        let error = Rig::preset("hex").unwrap_err().to_string();
+        assert!(error.contains("paper-2x4, mono-3x3, hexagon-7"), "{error}");
     }
 
     #[test]
     fn broken_rigs_are_clear_errors() {
         let mut dup = Rig::paper_rig_file(&EIGHT);
-        dup.cameras[1].col = 0;
+        dup.cameras[1].col = Some(0);
         let err = Rig::from_file(dup, ".".into()).unwrap_err().to_string();
         assert!(err.contains("two cameras at row 0 col 0"), "{err}");
 
@@ -508,7 +571,7 @@ mod tests {
             .contains("no camera at row 1 col 3"));
 
         let mut outside = Rig::paper_rig_file(&EIGHT);
-        outside.cameras[0].row = 7;
+        outside.cameras[0].row = Some(7);
         let err = Rig::from_file(outside, ".".into()).unwrap_err();
         assert!(
             matches!(&err, Error::Mismatch { found, .. } if found.contains("row 7")),
@@ -544,7 +607,7 @@ mod tests {
             .to_string();
         assert!(err.contains("t.toml"), "{err}");
         let mut zero = Rig::paper_rig_file(&EIGHT);
-        zero.baseline_mm.vertical = 0.0;
+        zero.baseline_mm.as_mut().unwrap().vertical = 0.0;
         assert_eq!(
             Rig::from_file(zero, ".".into()).err().map(|e| e.kind()),
             Some("Mismatch")

@@ -62,7 +62,7 @@ impl EffectiveResponses {
         let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = rig
             .cameras
             .iter()
-            .map(|c| (&c.sensor, &c.filter, format!("r{}c{}", c.row, c.col)))
+            .map(|c| (&c.sensor, &c.filter, c.name.clone()))
             .collect();
         Self::of_cameras(
             &cameras,

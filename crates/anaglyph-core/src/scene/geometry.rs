@@ -101,16 +101,11 @@ pub struct PinholeCamera {
 }
 
 impl PinholeCamera {
-    /// A camera of the parallel array at (row, col) with baselines in mm.
-    pub fn on_grid(
-        row: usize,
-        col: usize,
-        baseline_mm: (f64, f64),
-        focal_px: f64,
-        size: (usize, usize),
-    ) -> Self {
+    /// A camera of the parallel array at `[x, y]` mm in the array's plane (x right, y
+    /// down, seen from behind the array).
+    pub fn at_position(position_mm: [f64; 2], focal_px: f64, size: (usize, usize)) -> Self {
         PinholeCamera {
-            centre: Vec3::new(col as f64 * baseline_mm.0, row as f64 * baseline_mm.1, 0.0),
+            centre: Vec3::new(position_mm[0], position_mm[1], 0.0),
             rotation: rotation([0.0; 3]),
             focal_px,
             width: size.0,
@@ -120,19 +115,13 @@ impl PinholeCamera {
     }
 
     /// The camera of an array registered to a plane at `plane_mm` (see
-    /// [`crate::rig::RigFile::calibration_plane_mm`]): the image shifted so that a point of
-    /// the plane falls where the reference camera (0, 0) sees it, i.e. at zero disparity.
-    pub fn registered_to_plane(
-        self,
-        row: usize,
-        col: usize,
-        baseline_mm: (f64, f64),
-        plane_mm: f64,
-    ) -> Self {
-        let shift =
-            |steps: usize, baseline: f64| steps as f64 * self.focal_px * baseline / plane_mm;
+    /// [`crate::rig::RigFile::calibration_plane_mm`]), `from_reference_mm` away from the
+    /// reference camera in the array's plane: the image shifted so that a point of the
+    /// plane falls where the reference camera sees it, i.e. at zero disparity.
+    pub fn registered_to_plane(self, from_reference_mm: [f64; 2], plane_mm: f64) -> Self {
+        let shift = |mm: f64| self.focal_px * mm / plane_mm;
         PinholeCamera {
-            principal_offset_px: [shift(col, baseline_mm.0), shift(row, baseline_mm.1)],
+            principal_offset_px: from_reference_mm.map(shift),
             ..self
         }
     }
@@ -354,12 +343,15 @@ mod tests {
     fn a_point_projects_with_the_array_disparity() {
         let (f, bx, by, z) = (1800.0, 30.0, 50.0, 2000.0);
         let point = Vec3::new(123.0, -45.0, z);
-        let reference = PinholeCamera::on_grid(0, 0, (bx, by), f, (640, 480));
+        let on_grid = |row: usize, col: usize| {
+            PinholeCamera::at_position([col as f64 * bx, row as f64 * by], f, (640, 480))
+        };
+        let reference = on_grid(0, 0);
         let (x0, y0, depth) = reference.project(point).unwrap();
         assert!((depth - z).abs() < 1e-9);
         let d = f * bx / z;
         for (row, col) in [(0, 1), (0, 3), (1, 0), (1, 2)] {
-            let cam = PinholeCamera::on_grid(row, col, (bx, by), f, (640, 480));
+            let cam = on_grid(row, col);
             let (x, y, _) = cam.project(point).unwrap();
             assert!((x - (x0 - col as f64 * d)).abs() < 1e-9);
             assert!((y - (y0 - row as f64 * d * by / bx)).abs() < 1e-9);
@@ -373,13 +365,9 @@ mod tests {
     #[test]
     fn an_array_registered_to_a_plane_sees_it_at_zero_disparity() {
         let (f, bx, by, plane) = (1800.0, 30.0, 50.0, 1500.0);
-        let camera = |row, col| {
-            PinholeCamera::on_grid(row, col, (bx, by), f, (640, 480)).registered_to_plane(
-                row,
-                col,
-                (bx, by),
-                plane,
-            )
+        let camera = |row: usize, col: usize| {
+            let at = [col as f64 * bx, row as f64 * by];
+            PinholeCamera::at_position(at, f, (640, 480)).registered_to_plane(at, plane)
         };
         let d_plane = f * bx / plane;
         for z in [plane, 1000.0, 3000.0] {

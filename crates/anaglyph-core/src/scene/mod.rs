@@ -13,6 +13,7 @@ mod texture;
 
 pub use description::{
     random_scene, MaterialSpec, ObjectSpec, Scene, SceneFile, SceneObject, ShapeSpec, PRESETS,
+    TEST_SCENES,
 };
 pub use geometry::{rotate, rotation, Hit, PinholeCamera, Ray, Shape, Vec3};
 pub use material::{Material, MetamerVariation, SpectrumSampler};

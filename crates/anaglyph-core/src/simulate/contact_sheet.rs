@@ -1,5 +1,5 @@
-//! A preview of a simulation: every capture in its place on the array grid, as an 8-bit
-//! sRGB PNG. All views share one scale (the 99.5th percentile over all captures), so the
+//! A preview of a simulation: every capture at its camera's place in the array (seen from
+//! behind, as the rig's positions), as an 8-bit sRGB PNG. All views share one scale (the 99.5th percentile over all captures), so the
 //! different filters show as different colours and brightnesses, as the cameras saw them.
 
 use super::Simulation;
@@ -22,15 +22,55 @@ fn srgb_encode(v: f64) -> u8 {
     (e * 255.0).round() as u8
 }
 
-/// Writes the contact sheet of `simulation` for an array of `rows × cols` to `path`.
+/// Where tiles of `tw × th` go for cameras at `positions_mm`: the top-left corner of each
+/// and the sheet's size. The layout is scaled as little as keeps every two tiles apart.
+fn tile_layout(positions_mm: &[[f64; 2]], tw: usize, th: usize) -> (Vec<[usize; 2]>, [usize; 2]) {
+    let (pw, ph) = ((tw + GAP) as f64, (th + GAP) as f64);
+    let mut scale = 0.0f64;
+    for (i, a) in positions_mm.iter().enumerate() {
+        for b in &positions_mm[i + 1..] {
+            let (dx, dy) = ((a[0] - b[0]).abs(), (a[1] - b[1]).abs());
+            scale = scale.max((pw / dx).min(ph / dy));
+        }
+    }
+    let low = |k: usize| {
+        positions_mm
+            .iter()
+            .map(|p| p[k])
+            .fold(f64::INFINITY, f64::min)
+    };
+    let (x0, y0) = (low(0), low(1));
+    let corners: Vec<[usize; 2]> = positions_mm
+        .iter()
+        .map(|p| {
+            [
+                GAP + ((p[0] - x0) * scale).round() as usize,
+                GAP + ((p[1] - y0) * scale).round() as usize,
+            ]
+        })
+        .collect();
+    let extent =
+        |k: usize, tile: usize| corners.iter().map(|c| c[k]).max().unwrap_or(0) + tile + GAP;
+    let size = [extent(0, tw), extent(1, th)];
+    (corners, size)
+}
+
+/// Writes the contact sheet of `simulation`, whose cameras sit at `positions_mm`, to
+/// `path`.
 pub fn write_contact_sheet(
     path: &Path,
     simulation: &Simulation,
-    rows: usize,
-    cols: usize,
+    positions_mm: &[[f64; 2]],
 ) -> Result<()> {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
-    let factor = (cols * w).div_ceil(MAX_SHEET_WIDTH).max(1);
+    let mut factor = 1;
+    let (corners, [sw, sh]) = loop {
+        let (corners, size) = tile_layout(positions_mm, w / factor, h / factor);
+        if size[0] <= MAX_SHEET_WIDTH || w / factor <= 1 {
+            break (corners, size);
+        }
+        factor += 1;
+    };
     let (tw, th) = (w / factor, h / factor);
     let mut all: Vec<f32> = simulation
         .views
@@ -44,10 +84,8 @@ pub fn write_contact_sheet(
     } else {
         1.0
     };
-    let (sw, sh) = (cols * tw + (cols + 1) * GAP, rows * th + (rows + 1) * GAP);
     let mut sheet = vec![40u8; sw * sh * 3];
-    for view in &simulation.views {
-        let (ox, oy) = (GAP + view.col * (tw + GAP), GAP + view.row * (th + GAP));
+    for (view, &[ox, oy]) in simulation.views.iter().zip(&corners) {
         for ty in 0..th {
             for tx in 0..tw {
                 let mut rgb = [0.0f64; 3];

@@ -36,8 +36,7 @@ use std::path::{Path, PathBuf};
 
 #[derive(Serialize)]
 struct ViewRecord {
-    row: usize,
-    col: usize,
+    name: String,
     capture: String,
     white: String,
     truth: String,
@@ -86,12 +85,8 @@ pub fn write_simulation(
     write_atomically(&dir.join("scene.toml"), |w| {
         w.write_all(scene_text.as_bytes())
     })?;
-    super::write_contact_sheet(
-        &dir.join("contact_sheet.png"),
-        simulation,
-        rig.file.rows,
-        rig.file.cols,
-    )?;
+    let positions: Vec<[f64; 2]> = rig.cameras.iter().map(|c| c.position_mm).collect();
+    super::write_contact_sheet(&dir.join("contact_sheet.png"), simulation, &positions)?;
     folder.write_manifest(&Manifest {
         generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
         scene,
@@ -112,10 +107,9 @@ fn write_view(
     view: &RenderedView,
 ) -> Result<ViewRecord> {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
-    let name = format!("r{}c{}", view.row, view.col);
+    let name = &view.name;
     let record = ViewRecord {
-        row: view.row,
-        col: view.col,
+        name: view.name.clone(),
         capture: format!("captures/{name}.png"),
         white: format!("white/{name}.png"),
         truth: format!("truth/{name}.hdr"),
@@ -175,13 +169,9 @@ fn finite_range(values: &[f32]) -> [f32; 2] {
 /// absolute, so that the copied rig still finds them (built-ins stay as they are).
 fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
     let mut rig_file = rig.file.clone();
-    for view in &simulation.views {
-        let name = format!("r{}c{}", view.row, view.col);
-        if let Some(entry) = rig_file
-            .cameras
-            .iter_mut()
-            .find(|c| c.row == view.row && c.col == view.col)
-        {
+    for (view, cam) in simulation.views.iter().zip(&rig.cameras) {
+        let name = &view.name;
+        if let Some(entry) = rig_file.cameras.get_mut(cam.entry) {
             entry.image = Some(PathBuf::from(format!("captures/{name}.png")));
             entry.white = Some(PathBuf::from(format!("white/{name}.png")));
             entry.exposure = Some(view.exposure);

@@ -77,8 +77,10 @@ impl Default for SimulationSettings {
 /// One rendered view.
 #[derive(Debug, Clone)]
 pub struct RenderedView {
-    pub row: usize,
-    pub col: usize,
+    /// The camera's name (see [`crate::rig::Camera::name`]).
+    pub name: String,
+    /// The camera's place in the array, mm (see [`crate::rig::Camera::position_mm`]).
+    pub position_mm: [f64; 2],
     /// Linear capture in [0, 1] of full scale, `height × width × channels`.
     pub capture: Vec<f32>,
     /// The white-board capture, same layout.
@@ -109,7 +111,7 @@ pub struct Simulation {
     pub bands: Vec<f64>,
 }
 
-/// Renders view (row, col) of `rig` looking at `scene`.
+/// Renders camera `camera_index` of `rig` looking at `scene`.
 pub fn render_view(
     rig: &Rig,
     scene: &Scene,
@@ -120,17 +122,15 @@ pub fn render_view(
 ) -> Result<RenderedView> {
     let (w, h) = (settings.width, settings.height);
     let cam = &rig.cameras[camera_index];
-    let baseline = (
-        rig.file.baseline_mm.horizontal,
-        rig.file.baseline_mm.vertical,
-    );
-    let mut camera =
-        PinholeCamera::on_grid(cam.row, cam.col, baseline, rig.file.focal_length_px, (w, h));
+    let (focal, unit) = (rig.file.focal_length_px, rig.disparity_baseline_mm);
+    let mut camera = PinholeCamera::at_position(cam.position_mm, focal, (w, h));
     // Disparity of the plane the captures are registered to (0: infinity).
     let mut plane_disparity = 0.0;
     if let Some(plane_mm) = rig.file.calibration_plane_mm {
-        camera = camera.registered_to_plane(cam.row, cam.col, baseline, plane_mm);
-        plane_disparity = rig.file.focal_length_px * baseline.0 / plane_mm;
+        let reference = rig.cameras[rig.reference].position_mm;
+        let offset = [0, 1].map(|k| cam.position_mm[k] - reference[k]);
+        camera = camera.registered_to_plane(offset, plane_mm);
+        plane_disparity = focal * unit / plane_mm;
     }
     let tracer = Tracer {
         scene,
@@ -147,12 +147,12 @@ pub fn render_view(
     };
     let disparity: Vec<f32> = depth
         .iter()
-        .map(|&z| (rig.file.focal_length_px * baseline.0 / z as f64 - plane_disparity) as f32)
+        .map(|&z| (focal * unit / z as f64 - plane_disparity) as f32)
         .collect();
     let exposed = tracer.expose(camera_index, &clean);
     Ok(RenderedView {
-        row: cam.row,
-        col: cam.col,
+        name: cam.name.clone(),
+        position_mm: cam.position_mm,
         capture: exposed.capture,
         white: exposed.white,
         channels: tracer.rows_of_camera.len(),

@@ -3,7 +3,7 @@
 //! a half-array), the cost of one pixel at a fractional disparity, and the half-step costs
 //! and equiangular fit of the subpixel stage. See [`super`] for the algorithm.
 //!
-//! In: every view's compact features, the array's positions and geometry. Out: cost
+//! In: every view's compact features and the array's geometry. Out: cost
 //! volumes, per-pixel costs and subpixel maps. Each product has a portable build and an
 //! AVX-512 BF16 one, tested to agree.
 
@@ -25,26 +25,20 @@ pub(super) struct PointCosts<'a> {
     /// Per view, every other view with its shift and half-arrays ([`others_of`]).
     others: Vec<Vec<OtherView>>,
     kernel: DotKernel,
-    pub positions: &'a [(usize, usize)],
     pub geometry: &'a ArrayGeometry,
 }
 
 impl<'a> PointCosts<'a> {
-    pub fn new(
-        features: &'a [CompactFeatures],
-        positions: &'a [(usize, usize)],
-        geometry: &'a ArrayGeometry,
-    ) -> Self {
+    pub fn new(features: &'a [CompactFeatures], geometry: &'a ArrayGeometry) -> Self {
         // The half steps' interpolated features take their norms from these.
         let kernel = DotKernel::for_channels(features[0].channels);
         PointCosts {
             features,
             neighbours: neighbour_products(kernel, features),
             others: (0..features.len())
-                .map(|i| others_of(positions, i, geometry))
+                .map(|i| others_of(geometry, i))
                 .collect(),
             kernel,
-            positions,
             geometry,
         }
     }
@@ -56,13 +50,7 @@ impl<'a> PointCosts<'a> {
 
     /// View `reference`'s cost volume over `range`.
     pub fn volume(&self, reference: usize, range: DisparityRange) -> CostVolume {
-        multi_view_cost_volume(
-            self.features,
-            self.positions,
-            reference,
-            self.geometry,
-            range,
-        )
+        multi_view_cost_volume(self.features, self.geometry, reference, range)
     }
 
     /// View `reference`'s costs at every pixel's disparity + [`HALF_STEPS`].
@@ -70,9 +58,8 @@ impl<'a> PointCosts<'a> {
         half_step_costs(
             self.features,
             &self.neighbours,
-            self.positions,
-            reference,
             self.geometry,
+            reference,
             disparity,
         )
     }
@@ -109,27 +96,23 @@ const HALVES: usize = 4;
 /// Fractional row offsets below this are treated as whole rows (one dot product).
 const WHOLE_ROW: f64 = 1e-6;
 
-/// The half-arrays view `to` belongs to, seen from `from`.
-fn halves_of(from: (usize, usize), to: (usize, usize)) -> [bool; HALVES] {
-    [to.1 < from.1, to.1 > from.1, to.0 < from.0, to.0 > from.0]
+/// Positions (in disparity baselines) closer than this along an axis are level.
+const LEVEL: f64 = 1e-6;
+
+/// The half-arrays of the view shifted by `shift` per unit disparity from the reference:
+/// left of it (a positive x shift), right, above, below.
+fn halves_of((sx, sy): (f64, f64)) -> [bool; HALVES] {
+    [sx > LEVEL, sx < -LEVEL, sy > LEVEL, sy < -LEVEL]
 }
 
 /// Every view but `reference`: its index, its shift per unit disparity and the half-arrays
 /// it belongs to.
-fn others_of(
-    positions: &[(usize, usize)],
-    reference: usize,
-    geometry: &ArrayGeometry,
-) -> Vec<OtherView> {
-    let me = positions[reference];
-    (0..positions.len())
+fn others_of(geometry: &ArrayGeometry, reference: usize) -> Vec<OtherView> {
+    (0..geometry.len())
         .filter(|&v| v != reference)
         .map(|v| {
-            (
-                v,
-                geometry.shift(me, positions[v]),
-                halves_of(me, positions[v]),
-            )
+            let shift = geometry.shift(reference, v);
+            (v, shift, halves_of(shift))
         })
         .collect()
 }
@@ -137,13 +120,12 @@ fn others_of(
 /// The occlusion-robust multi-view cost volume of view `reference` (see the module docs).
 pub fn multi_view_cost_volume(
     features: &[CompactFeatures],
-    positions: &[(usize, usize)],
-    reference: usize,
     geometry: &ArrayGeometry,
+    reference: usize,
     range: DisparityRange,
 ) -> CostVolume {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    cost_volume_with(kernel, features, positions, reference, geometry, range)
+    cost_volume_with(kernel, features, geometry, reference, range)
 }
 
 /// [`multi_view_cost_volume`] with the given build of the dot products.
@@ -156,15 +138,14 @@ pub fn multi_view_cost_volume(
 fn cost_volume_with(
     kernel: DotKernel,
     features: &[CompactFeatures],
-    positions: &[(usize, usize)],
-    reference: usize,
     geometry: &ArrayGeometry,
+    reference: usize,
     range: DisparityRange,
 ) -> CostVolume {
     let fr = &features[reference];
     let disparities = range.count();
     let (w, c) = (fr.width, fr.channels);
-    let others = others_of(positions, reference, geometry);
+    let others = others_of(geometry, reference);
     let members: Vec<Vec<usize>> = others
         .iter()
         .map(|(_, _, halves)| (0..HALVES).filter(|&k| halves[k]).collect())
@@ -551,15 +532,12 @@ fn cost_at(
 fn half_step_costs(
     features: &[CompactFeatures],
     neighbours: &[NeighbourProducts],
-    positions: &[(usize, usize)],
-    reference: usize,
     geometry: &ArrayGeometry,
+    reference: usize,
     disparity: &[f32],
 ) -> Vec<[f32; 4]> {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    half_step_costs_with(
-        kernel, features, neighbours, positions, reference, geometry, disparity,
-    )
+    half_step_costs_with(kernel, features, neighbours, geometry, reference, disparity)
 }
 
 /// Every view's [`NeighbourProducts`], with the given build of the dot products.
@@ -583,14 +561,13 @@ fn half_step_costs_with(
     kernel: DotKernel,
     features: &[CompactFeatures],
     neighbours: &[NeighbourProducts],
-    positions: &[(usize, usize)],
-    reference: usize,
     geometry: &ArrayGeometry,
+    reference: usize,
     disparity: &[f32],
 ) -> Vec<[f32; 4]> {
     let fr = &features[reference];
     let w = fr.width;
-    let others = others_of(positions, reference, geometry);
+    let others = others_of(geometry, reference);
     let mut out = vec![[f32::NAN; 4]; disparity.len()];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let job = RowJob {
@@ -732,11 +709,7 @@ mod tests {
     #[test]
     fn the_true_disparity_has_the_lowest_cost() {
         let (w, h, c, d_true) = (24usize, 20usize, 8usize, 3usize);
-        let geometry = ArrayGeometry {
-            rows: 2,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(2, 2, 1.0);
         let mut state = 12345u64;
         let mut next = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
@@ -770,7 +743,7 @@ mod tests {
             .collect();
         // A signed range: the volume's index 0 is disparity −2.
         let range = DisparityRange::new(-2, 6).unwrap();
-        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, range);
+        let volume = multi_view_cost_volume(&features, &geometry, 0, range);
         let wta = winner_take_all(&volume);
         let (x, y) = (w / 2, h / 2);
         assert_eq!(wta[y * w + x], d_true as f32);
@@ -783,11 +756,7 @@ mod tests {
     #[test]
     fn half_steps_recover_a_fractional_disparity() {
         let (w, h, c, d_true) = (48usize, 16usize, 8usize, 3.3f64);
-        let geometry = ArrayGeometry {
-            rows: 1,
-            cols: 2,
-            baseline_ratio: 1.0,
-        };
+        let geometry = ArrayGeometry::grid(1, 2, 1.0);
         let field = |x: f64, y: f64| -> Vec<f32> {
             let v: Vec<f64> = (0..c)
                 .map(|k| {
@@ -814,12 +783,11 @@ mod tests {
             })
         };
         let features = vec![view(0.0), view(d_true)];
-        let positions = [(0, 0), (0, 1)];
         let range = DisparityRange::up_to(8).unwrap();
-        let volume = multi_view_cost_volume(&features, &positions, 0, &geometry, range);
+        let volume = multi_view_cost_volume(&features, &geometry, 0, range);
         let whole = winner_take_all(&volume);
         let neighbours = neighbour_products(DotKernel::Portable, &features);
-        let half = half_step_costs(&features, &neighbours, &positions, 0, &geometry, &whole);
+        let half = half_step_costs(&features, &neighbours, &geometry, 0, &whole);
         let fine = half_step_subpixel(&volume, &half, &whole, 3);
         let coarse = crate::stereo::windowed_subpixel(&volume, &whole, 3);
         let (x, y) = (20, 8);
@@ -844,19 +812,13 @@ mod tests {
     fn every_dot_product_build_gives_the_same_costs() {
         let (w, h, c) = (40usize, 12usize, 64usize);
         let range = DisparityRange::new(-3, 3).unwrap();
-        let geometry = ArrayGeometry {
-            rows: 2,
-            cols: 4,
-            baseline_ratio: 5.0 / 3.0,
-        };
-        let positions: Vec<(usize, usize)> = (0..8).map(|i| (i / 4, i % 4)).collect();
+        let geometry = ArrayGeometry::grid(2, 4, 5.0 / 3.0);
         let mut state = 777u64;
         let mut next = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
             ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
         };
-        let features: Vec<CompactFeatures> = positions
-            .iter()
+        let features: Vec<CompactFeatures> = (0..geometry.len())
             .map(|_| {
                 let mut data: Vec<f32> = (0..w * h * c).map(|_| next()).collect();
                 for feature in data.chunks_exact_mut(c) {
@@ -875,26 +837,18 @@ mod tests {
         let kernels = DotKernel::available(c);
         assert_eq!(kernels.last(), Some(&DotKernel::Portable));
         let reference = 5; // r1c1: views on every side
-        let portable = cost_volume_with(
-            DotKernel::Portable,
-            &features,
-            &positions,
-            reference,
-            &geometry,
-            range,
-        );
+        let portable =
+            cost_volume_with(DotKernel::Portable, &features, &geometry, reference, range);
         let portable_half = half_step_costs_with(
             DotKernel::Portable,
             &features,
             &neighbour_products(DotKernel::Portable, &features),
-            &positions,
-            reference,
             &geometry,
+            reference,
             &disparity,
         );
         for &kernel in &kernels {
-            let volume =
-                cost_volume_with(kernel, &features, &positions, reference, &geometry, range);
+            let volume = cost_volume_with(kernel, &features, &geometry, reference, range);
             let worst = volume
                 .data
                 .iter()
@@ -906,9 +860,8 @@ mod tests {
                 kernel,
                 &features,
                 &neighbour_products(kernel, &features),
-                &positions,
-                reference,
                 &geometry,
+                reference,
                 &disparity,
             );
             let worst = half

@@ -5,10 +5,12 @@
 //! feature per pixel by a [`FeatureProjection`] fitted on the first view), or its grey image.
 //!
 //! For disparity d, pixel (x, y) of the reference is compared with the learned features of
-//! view v at `(x, y) + d · shift(v)` (the array geometry, [`ArrayGeometry::shift`]); a
-//! fractional row position interpolates the two dot products, which is exact for the
-//! bilinearly interpolated feature. The cost of view v is `(1 − cos)/2`, as for a pair.
-//! Views are grouped into half-arrays (left, right, above, below the reference); the cost
+//! view v at `(x, y) + d · shift(v)` (the array geometry, [`ArrayGeometry::shift`], along
+//! each pair's own baseline); a fractional row position interpolates the two dot
+//! products, which is exact for the bilinearly interpolated feature, and a fractional
+//! column is rounded (the subpixel stage interpolates both). The cost of view v is `(1 − cos)/2`, as for a pair.
+//! Views are grouped into half-arrays (left of, right of, above, below the reference; a
+//! diagonal view belongs to two); the cost
 //! of (x, y, d) is the smallest mean over a half-array that sees the point, so that a
 //! surface occluded on one side is still matched on the other (Kang, Szeliski & Chai 2001,
 //! "Handling occlusions in dense multi-view stereo"). Then SGM with penalties from the
@@ -16,39 +18,37 @@
 //! raw multi-view costs at whole and half-pixel steps around the winner (the latter with
 //! interpolated, renormalised features), summed over a window of the same surface, by an
 //! equiangular fit ([`crate::stereo::windowed_subpixel`] on a half-pixel grid: the
-//! parabola on SGM costs locks to whole pixels); finally each map is
-//! checked against its row and column neighbours' maps (a pixel is kept if at least one
+//! parabola on SGM costs locks to whole pixels); finally each map is checked against its
+//! neighbours' maps ([`ArrayGeometry::neighbours`]; a pixel is kept if at least one
 //! neighbour agrees within [`crate::stereo::LEFT_RIGHT_TOLERANCE`]), each failure takes
 //! whichever of its nearest valid neighbours left, right, above and below has the lowest
 //! multi-view cost at the pixel ([`fill_by_cost`]), a 5×5 median smooths the result, and
 //! regions of repetitive texture, whose costs have several equal minima, take the plane
-//! most of their disparities lie on, unless most of the view's row and column neighbours
-//! find another ([`region_planes`], [`vote_with_neighbours`], [`apply_region_planes`]).
+//! most of their disparities lie on, unless most of the view's neighbours find another ([`region_planes`], [`vote_with_neighbours`], [`apply_region_planes`]).
 //!
 //! ```text
 //! matching images -> features   the network's features, common signals merged      mod.rs
 //!   -> cost        occlusion-robust multi-view cost volume per view              cost.rs
 //!   -> SGM         penalties from the view's gradients, winner-take-all
 //!   -> subpixel    half-step costs, equiangular fit                              cost.rs
-//!   -> cross-check against the row and column neighbours' maps      super::agreement
+//!   -> cross-check against the neighbours' maps                      super::agreement
 //!   -> fill        by cost, from the nearest valid neighbours        super::fill_by_cost
 //!   -> median      5×5, then smoothing within surfaces
 //!   -> planes      RANSAC planes through ambiguous regions    super::ambiguous_planes
 //!   -> vote        the neighbours' maps vote on each region's plane
 //! ```
 //!
-//! In: every view's grid image (and matching images), the array geometry, the settings.
+//! In: every view's image (and matching images), the array geometry, the settings.
 //! Out: a disparity map per view, per-stage timings and the pixels moved to planes.
 
 mod cost;
 
-use super::agreement::neighbours as array_neighbours;
 use super::compact_features::CompactFeatures;
 use super::feature_projection::FeatureProjection;
 use super::{
     apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
-    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, GridImage, RegionPlane,
-    Registration, RegistrationSettings, SUBPIXEL_WINDOW_RADIUS,
+    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, RegionPlane,
+    Registration, RegistrationSettings, ViewImage, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all,
@@ -60,31 +60,24 @@ use std::time::Instant;
 
 /// Multi-baseline registration of every view (see the module docs), stage by stage.
 pub fn multi_baseline_disparities(
-    images: &[GridImage],
+    images: &[ViewImage],
     geometry: &ArrayGeometry,
     settings: &RegistrationSettings<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
     let network = fast_network(settings)?;
-    let positions: Vec<(usize, usize)> = images.iter().map(|v| (v.row, v.col)).collect();
     let mut timings = Vec::new();
 
     let clock = Instant::now();
     let features = view_features(network, images)?;
-    let costs = PointCosts::new(&features, &positions, geometry);
+    let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let matched = match_views(images, &costs, settings, &mut timings, progress);
     let clock = Instant::now();
     let smoothed: Vec<Vec<f32>> = (0..images.len())
         .map(|i| checked_filled_smoothed(&matched.raw, &costs, i))
         .collect();
-    let planes = planes_by_vote(
-        images,
-        &smoothed,
-        &matched.ambiguities,
-        &costs,
-        settings.range,
-    );
+    let planes = planes_by_vote(&smoothed, &matched.ambiguities, &costs, settings.range);
     timings.push((
         "cross-check, fill, median, planes".to_string(),
         clock.elapsed().as_secs_f64(),
@@ -122,7 +115,7 @@ struct MatchedViews {
 /// Per view: the multi-view cost volume, SGM with winner-take-all, and the subpixel
 /// offset from the half-step costs.
 fn match_views(
-    images: &[GridImage],
+    images: &[ViewImage],
     costs: &PointCosts<'_>,
     settings: &RegistrationSettings<'_>,
     timings: &mut Vec<(String, f64)>,
@@ -171,20 +164,19 @@ fn match_views(
     matched
 }
 
-/// View `i`'s raw map checked against its row and column neighbours', the failures filled
+/// View `i`'s raw map checked against its neighbours', the failures filled
 /// by cost from their nearest valid neighbours, then a 5×5 median and smoothing within
 /// surfaces.
 fn checked_filled_smoothed(raw: &[Vec<f32>], costs: &PointCosts<'_>, i: usize) -> Vec<f32> {
     let (w, h) = costs.size();
-    let mut checked = confirmed_by_neighbours(raw, costs.positions, costs.geometry, i, w, h);
+    let mut checked = confirmed_by_neighbours(raw, costs.geometry, i, w, h);
     fill_by_cost(&mut checked, w, h, &costs.at(i));
     smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
 }
 
-/// Each view's ambiguous regions moved to their planes, after the vote of its row and
-/// column neighbours' maps on their own planes; with the pixels moved per view.
+/// Each view's ambiguous regions moved to their planes, after the vote of its
+/// neighbours' maps on their own planes; with the pixels moved per view.
 fn planes_by_vote(
-    images: &[GridImage],
     smoothed: &[Vec<f32>],
     ambiguities: &[Ambiguity],
     costs: &PointCosts<'_>,
@@ -216,10 +208,9 @@ fn planes_by_vote(
                 on_planes(i, &regions)
             };
             tracing::info!(
-                "view r{}c{}: {} ambiguous regions ({changed} of them changed by the \
+                "view {}: {} ambiguous regions ({changed} of them changed by the \
                  neighbours' vote), {moved} pixels moved to their planes",
-                images[i].row,
-                images[i].col,
+                costs.geometry.names[i],
                 regions.len()
             );
             (planar, moved)
@@ -227,7 +218,7 @@ fn planes_by_vote(
         .collect()
 }
 
-/// Puts view `i`'s region planes to the vote of its row and column neighbours' maps
+/// Puts view `i`'s region planes to the vote of its neighbours' maps
 /// (each on its own planes); returns how many regions changed.
 fn vote_of_neighbours(
     regions: &mut [RegionPlane],
@@ -237,20 +228,18 @@ fn vote_of_neighbours(
     i: usize,
 ) -> usize {
     let (w, h) = costs.size();
-    let positions = costs.positions;
-    let voters: Vec<(&[f32], (f64, f64))> = array_neighbours(positions, costs.geometry, i)
+    let geometry = costs.geometry;
+    let voters: Vec<(&[f32], (f64, f64))> = geometry
+        .neighbours(i)
         .into_iter()
-        .map(|(j, _)| {
-            let shift = costs.geometry.shift(positions[j], positions[i]);
-            (on_own_planes[j].0.as_slice(), shift)
-        })
+        .map(|j| (on_own_planes[j].0.as_slice(), geometry.shift(j, i)))
         .collect();
     vote_with_neighbours(regions, map, w, h, &voters)
 }
 
 /// The images a view's features come from: its matching images if it has any, else its
 /// grey image.
-fn matching_images(view: &GridImage) -> Vec<&GreyImage> {
+fn matching_images(view: &ViewImage) -> Vec<&GreyImage> {
     if view.matching.is_empty() {
         vec![&view.image]
     } else {
@@ -261,7 +250,7 @@ fn matching_images(view: &GridImage) -> Vec<&GreyImage> {
 /// Every view's compact features: the network's features of its matching images, merged
 /// by a [`FeatureProjection`] fitted on the first view when there are several; pixels a
 /// view did not measure get a zero feature (a neutral cost of 0.5).
-fn view_features(network: &MatchingNetwork, images: &[GridImage]) -> Result<Vec<CompactFeatures>> {
+fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<CompactFeatures>> {
     // The first view's maps fit the projection and are then merged themselves, not
     // computed again (a ninth of the network's work for three signals).
     let (projection, mut first_maps) = if matching_images(&images[0]).len() > 1 {
