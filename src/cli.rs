@@ -230,6 +230,21 @@ fn parse_metamers(text: &str) -> Result<(f64, f64), String> {
     }
 }
 
+fn parse_dark(text: &str) -> Result<(f64, f64), String> {
+    let mut parts = text.split(',').map(|p| p.trim().parse::<f64>());
+    let level = parts.next();
+    let pattern = parts.next().unwrap_or(Ok(0.0));
+    match (level, pattern, parts.next()) {
+        (Some(Ok(l)), Ok(p), None) if (0.0..=0.5).contains(&l) && (0.0..=l).contains(&p) => {
+            Ok((l, p))
+        }
+        _ => Err(format!(
+            "'{text}' (expected LEVEL[,PATTERN] as fractions of full scale, LEVEL 0 to 0.5, \
+             PATTERN 0 to LEVEL)"
+        )),
+    }
+}
+
 fn parse_size(text: &str) -> Result<(usize, usize), String> {
     let (w, h) = text
         .split_once(['x', 'X'])
@@ -278,6 +293,11 @@ pub struct SimulateArgs {
     /// captures and white boards alike, as real optics do).
     #[arg(long, default_value_t = 0.0)]
     pub vignetting: f64,
+    /// A sensor dark signal LEVEL[,PATTERN] (fractions of full scale: the black level and
+    /// the standard deviation of its fixed pattern) in captures and white boards; each
+    /// camera's master dark frame goes to DIR/dark/ and is named in rig.toml.
+    #[arg(long, value_parser = parse_dark)]
+    pub dark: Option<(f64, f64)>,
     /// Vary texture and pattern spectra at fixed colour: AMPLITUDE[,SCALE_MM] (1 = the
     /// full spread of measured spectra of one colour; features of SCALE_MM, default 10).
     /// Without it every colour gets the mean measured spectrum of that colour.

@@ -5,7 +5,9 @@ use crate::cli::SimulateArgs;
 use crate::progress::spinner;
 use anaglyph_core::rig::Rig;
 use anaglyph_core::scene::{random_scene, MetamerVariation, Scene, SceneFile, PRESETS};
-use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
+use anaglyph_core::simulate::{
+    write_simulation, DarkSignal, PoseJitter, Simulation, SimulationSettings,
+};
 use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
@@ -57,6 +59,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         supersampling: args.supersampling,
         seed: args.seed,
         vignetting: args.vignetting,
+        dark: args
+            .dark
+            .map(|(level, pattern)| DarkSignal { level, pattern }),
         ..SimulationSettings::default()
     };
     if args.noise_free {

@@ -87,27 +87,36 @@ fn black_levels_and_dark_frames_are_subtracted_before_calibration() {
     );
     let subtracted = psnr_of(d, "black.toml", "rec-black");
 
-    // A dark frame with a fixed pattern of 1-3 % of full scale.
-    let pattern = |x: usize, y: usize| 0.01 + 0.02 * ((x * 7 + y * 3) % 5) as f32 / 4.0;
-    darkened(d, "pattern", pattern, |_| {});
-    std::fs::create_dir_all(d.join("dark")).unwrap();
-    let frame: Vec<f32> = (0..96 * 128)
-        .flat_map(|p| [pattern(p % 128, p / 128); 3])
-        .collect();
-    let frame = anaglyph_core::image::Image::new(128, 96, 3, frame).unwrap();
-    write_png16(&d.join("dark/frame.png"), &frame).unwrap();
-    darkened(d, "framed", pattern, |cam| {
-        cam.dark = Some("dark/frame.png".into())
-    });
-    let with_frame = psnr_of(d, "framed.toml", "rec-framed");
-
+    // The simulator's dark signal: a black level of 6 % of full scale with a fixed pattern
+    // of 0.5 %, and each camera's master dark frame, which its rig names.
+    let args = ["simulate", "--scene", "tabletop", "--size", "128x96"];
+    let o = anaglyph(
+        &[&args[..], &["--dark", "0.06,0.005", "--out", "dark"]].concat(),
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(d.join("dark/dark/r1c3.png").is_file());
+    let with_frame = psnr_of(d, "dark/rig.toml", "rec-framed");
+    let text = std::fs::read_to_string(d.join("dark/rig.toml")).unwrap();
+    let mut rig = RigFile::from_toml_str(&text, "dark rig").unwrap();
+    for cam in &mut rig.cameras {
+        cam.dark = None;
+    }
+    rig.save(&d.join("dark/no_dark.toml")).unwrap();
+    let frame_ignored = psnr_of(d, "dark/no_dark.toml", "rec-frame-ignored");
+    eprintln!(
+        "clean {clean:.2} dB; black level ignored {ignored:.2} dB, subtracted \
+         {subtracted:.2} dB; dark frames ignored {frame_ignored:.2} dB, subtracted \
+         {with_frame:.2} dB"
+    );
     assert!(
         subtracted > clean - 0.3 && with_frame > clean - 0.3,
         "clean {clean:.2} dB, black level {subtracted:.2} dB, dark frame {with_frame:.2} dB"
     );
     assert!(
-        ignored < clean - 1.0,
-        "an offset left in should cost more than 1 dB: clean {clean:.2}, ignored {ignored:.2}"
+        ignored < clean - 1.0 && frame_ignored < clean - 1.0,
+        "an offset left in should cost more than 1 dB: clean {clean:.2}, ignored {ignored:.2} \
+         and {frame_ignored:.2}"
     );
 }
 

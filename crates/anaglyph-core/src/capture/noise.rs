@@ -47,13 +47,20 @@ impl CameraNoise {
 
     /// Applies shot noise, read noise, quantisation and clipping to `clean`.
     pub fn apply(&self, clean: &[f64], seed: u64) -> NoisyMeasurements {
+        self.apply_with_offset(clean, &[], seed)
+    }
+
+    /// [`Self::apply`] with a dark offset per value (fraction of full scale: a black level
+    /// and its fixed pattern; empty: none) added before the ADC, so that clipping sees it;
+    /// the values returned include it.
+    pub fn apply_with_offset(&self, clean: &[f64], offset: &[f64], seed: u64) -> NoisyMeasurements {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let levels = ((1u64 << self.bits) - 1) as f64;
         let electrons_per_unit = self.exposure * self.full_well_electrons;
         let read = Normal::new(0.0, self.read_noise_electrons.max(0.0)).ok();
         let mut values = Vec::with_capacity(clean.len());
         let mut saturated = Vec::with_capacity(clean.len());
-        for &p in clean {
+        for (i, &p) in clean.iter().enumerate() {
             let mean = (p.max(0.0) * electrons_per_unit).min(4.0 * self.full_well_electrons);
             let mut e = if mean > 0.0 {
                 Poisson::new(mean)
@@ -65,7 +72,8 @@ impl CameraNoise {
             if let Some(read) = &read {
                 e += read.sample(&mut rng);
             }
-            let dn = (e / self.full_well_electrons * levels)
+            let dark = offset.get(i).map_or(0.0, |o| o * levels);
+            let dn = (e / self.full_well_electrons * levels + dark)
                 .round()
                 .clamp(0.0, levels);
             saturated.push(dn >= levels);

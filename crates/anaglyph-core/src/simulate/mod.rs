@@ -10,9 +10,11 @@
 //! reconstruction assumes (8 nm knots), so tests never commit the inverse crime.
 
 mod contact_sheet;
+mod dark;
 mod output;
 mod render;
 
 pub use contact_sheet::write_contact_sheet;
+pub use dark::{DarkSignal, DARK_FRAMES, MAX_DARK_LEVEL};
 pub use output::write_simulation;
 pub use render::{render_view, PoseJitter, RenderedView, Simulation, SimulationSettings};

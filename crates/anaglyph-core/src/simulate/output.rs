@@ -3,15 +3,17 @@
 //! ```text
 //! DIR/rig.toml                          the rig, with each camera's image and white filled in
 //! DIR/scene.toml                        the scene that was rendered
-//! DIR/captures/r{row}c{col}.png         linear 16-bit captures (RGB, or grey for monochrome)
-//! DIR/white/r{row}c{col}.png            white-board captures
-//! DIR/truth/r{row}c{col}.hdr + .img     ENVI float32 reflectance at the reconstruction bands
-//! DIR/truth/r{row}c{col}_disparity.pfm  disparity per column step (Middlebury sign)
-//! DIR/truth/r{row}c{col}_depth.pfm      depth along the optical axis, mm
+//! DIR/captures/<camera>.png             linear 16-bit captures (RGB, or grey for monochrome)
+//! DIR/white/<camera>.png                white-board captures
+//! DIR/dark/<camera>.png                 master dark frames, with a dark signal (named in
+//!                                       rig.toml as each camera's `dark`)
+//! DIR/truth/<camera>.hdr + .img         ENVI float32 reflectance at the reconstruction bands
+//! DIR/truth/<camera>_disparity.pfm      disparity per disparity baseline (Middlebury sign)
+//! DIR/truth/<camera>_depth.pfm          depth along the optical axis, mm
 //! DIR/manifest.json                     scene, seed, rig, noise, exposures; the run id
 //!                                       and every file with its size and CRC-32 (last)
-//! DIR/contact_sheet.png                 8-bit sRGB preview of all captures on the grid
-//! DIR/calibration/r{row}c{col}.json     the capturing camera in OpenCV FileStorage JSON:
+//! DIR/contact_sheet.png                 8-bit sRGB preview of all captures in their places
+//! DIR/calibration/<camera>.json         the capturing camera in OpenCV FileStorage JSON:
 //!                                       camera_matrix, distortion_coefficients (zero),
 //!                                       rotation_matrix and translation_vector (world to
 //!                                       camera, mm; world = ideal camera r0c0); named in
@@ -39,6 +41,8 @@ struct ViewRecord {
     name: String,
     capture: String,
     white: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dark: Option<String>,
     truth: String,
     disparity: String,
     depth: String,
@@ -74,6 +78,9 @@ pub fn write_simulation(
     let dir = folder.path();
     for sub in ["captures", "white", "truth", "calibration"] {
         create_dir(&dir.join(sub))?;
+    }
+    if simulation.settings.dark.is_some() {
+        create_dir(&dir.join("dark"))?;
     }
     let mut records = Vec::new();
     for view in &simulation.views {
@@ -112,6 +119,7 @@ fn write_view(
         name: view.name.clone(),
         capture: format!("captures/{name}.png"),
         white: format!("white/{name}.png"),
+        dark: view.dark.as_ref().map(|_| format!("dark/{name}.png")),
         truth: format!("truth/{name}.hdr"),
         disparity: format!("truth/{name}_disparity.pfm"),
         depth: format!("truth/{name}_depth.pfm"),
@@ -127,6 +135,9 @@ fn write_view(
     };
     write_png16(&dir.join(&record.capture), &image(&view.capture))?;
     write_png16(&dir.join(&record.white), &image(&view.white))?;
+    if let (Some(path), Some(dark)) = (&record.dark, &view.dark) {
+        write_png16(&dir.join(path), &image(dark))?;
+    }
     let cube = EnviCube {
         image: Image {
             width: w,
@@ -175,6 +186,9 @@ fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
             entry.image = Some(PathBuf::from(format!("captures/{name}.png")));
             entry.white = Some(PathBuf::from(format!("white/{name}.png")));
             entry.exposure = Some(view.exposure);
+            if view.dark.is_some() {
+                entry.dark = Some(PathBuf::from(format!("dark/{name}.png")));
+            }
             if simulation.settings.pose_jitter.is_some() {
                 entry.calibration = Some(PathBuf::from(format!("calibration/{name}.json")));
             }

@@ -1,5 +1,6 @@
 //! Ray casting one view of the array and turning its reflectances into captures.
 
+use super::dark::{master_dark, DarkSignal};
 use crate::capture::CameraNoise;
 use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::rig::{EffectiveResponses, OutOfBand, Rig, SensingMatrix};
@@ -42,6 +43,9 @@ pub struct SimulationSettings {
     /// `1 − v·(r / r_corner)²` from the image centre; the white board is captured through
     /// the same optics (0: none).
     pub vignetting: f64,
+    /// A black level with a fixed pattern in captures and white boards, and a master dark
+    /// frame per camera to subtract it (None: none).
+    pub dark: Option<DarkSignal>,
 }
 
 /// Largest vignetting the simulator renders (corners at 5 % of the centre).
@@ -70,6 +74,7 @@ impl Default for SimulationSettings {
             pose_jitter: None,
             metamers: None,
             vignetting: 0.0,
+            dark: None,
         }
     }
 }
@@ -85,6 +90,8 @@ pub struct RenderedView {
     pub capture: Vec<f32>,
     /// The white-board capture, same layout.
     pub white: Vec<f32>,
+    /// The master dark frame, same layout (with a [`DarkSignal`]).
+    pub dark: Option<Vec<f32>>,
     pub channels: usize,
     /// Noise-free signal in the sensing matrix's normalised units (white peak = 1).
     pub clean: Vec<f32>,
@@ -155,6 +162,7 @@ pub fn render_view(
         position_mm: cam.position_mm,
         capture: exposed.capture,
         white: exposed.white,
+        dark: exposed.dark,
         channels: tracer.rows_of_camera.len(),
         clean,
         truth,
@@ -225,6 +233,8 @@ fn jittered(
 struct Exposed {
     capture: Vec<f32>,
     white: Vec<f32>,
+    /// The master dark frame (with a dark signal).
+    dark: Option<Vec<f32>>,
     exposure: f64,
     saturated: usize,
 }
@@ -266,22 +276,38 @@ impl Tracer<'_> {
         let whites: Vec<f64> = (0..values)
             .map(|i| white_signal[i % channels] * falloff(i / channels))
             .collect();
+        let offsets = settings
+            .dark
+            .map(|d| d.offsets(values, settings.seed, camera_index))
+            .unwrap_or_default();
+        let dark = settings.dark.map(|_| {
+            master_dark(
+                &offsets,
+                settings.noise.as_ref(),
+                settings.seed ^ camera_index as u64,
+            )
+        });
         let Some(noise) = settings.noise else {
             let exposure = 0.9;
+            let offset = |i: usize| offsets.get(i).copied().unwrap_or(0.0);
+            let expose = |v: &[f64]| -> Vec<f32> {
+                v.iter()
+                    .enumerate()
+                    .map(|(i, &v)| (v * exposure + offset(i)).min(1.0) as f32)
+                    .collect()
+            };
             return Exposed {
-                capture: clean
-                    .iter()
-                    .map(|&v| (v * exposure).min(1.0) as f32)
-                    .collect(),
-                white: whites.iter().map(|v| (v * exposure) as f32).collect(),
+                capture: expose(&clean),
+                white: expose(&whites),
+                dark,
                 exposure,
                 saturated: 0,
             };
         };
         let exposure = noise.exposure * (1.0 - settings.exposure_jitter * jitter);
         let camera_noise = CameraNoise { exposure, ..noise };
-        let noisy = camera_noise.apply(&clean, rng.random());
-        let white = camera_noise.apply(&whites, rng.random());
+        let noisy = camera_noise.apply_with_offset(&clean, &offsets, rng.random());
+        let white = camera_noise.apply_with_offset(&whites, &offsets, rng.random());
         let to_capture = |v: &[f64]| {
             v.iter()
                 .map(|&p| (p * exposure).clamp(0.0, 1.0) as f32)
@@ -290,6 +316,7 @@ impl Tracer<'_> {
         Exposed {
             capture: to_capture(&noisy.values),
             white: to_capture(&white.values),
+            dark,
             exposure,
             saturated: noisy.saturated.iter().filter(|s| **s).count(),
         }
@@ -475,6 +502,9 @@ impl Simulation {
                 format!("{}", settings.vignetting),
                 format!("a fraction of the light lost at the corners, 0 to {MAX_VIGNETTING}"),
             ));
+        }
+        if let Some(dark) = settings.dark {
+            dark.check()?;
         }
         if let Some(m) = settings.metamers {
             if !(m.amplitude >= 0.0 && m.amplitude.is_finite() && m.scale_mm > 0.0) {
