@@ -8,14 +8,18 @@
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
 //! fewer). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
-//! network; `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs.
+//! network; `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
+//! is every heterogeneous pair with its right image's contrast inverted; the refined chain
+//! runs with `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same`
+//! turns it off), which also prints how many pairs of each group it took for inverted
+//! (`ANAGLYPH_VOTES=1` prints every pair's vote).
 
 use anaglyph_cnn::dataset::{
     rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
 };
 use anaglyph_core::scene::SceneFile;
 use anaglyph_core::stereo::{
-    match_pair, DisparityRange, MatchSettings, MatchingCost, MatchingNetwork,
+    match_pair, negated, Contrast, DisparityRange, MatchSettings, MatchingCost, MatchingNetwork,
 };
 use std::time::Instant;
 
@@ -37,6 +41,8 @@ struct Score {
     error: f64,
     density: f64,
     seconds_per_mpx_100d: f64,
+    /// Pairs the contrast vote took for inverted.
+    voted_inverted: usize,
 }
 
 fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp: usize) -> Score {
@@ -44,14 +50,29 @@ fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp:
     let (mut bad, mut total, mut error_sum, mut error_count, mut valid) = (0, 0, 0.0, 0, 0);
     let mut seconds = 0.0;
     let mut megapixels = 0.0;
+    let mut voted_inverted = 0;
     for pair in pairs {
         let settings = if refine {
-            MatchSettings::for_cost(cost, range)
+            MatchSettings {
+                contrast: if std::env::var("ANAGLYPH_CONTRAST").is_ok_and(|v| v == "same") {
+                    Contrast::Same
+                } else {
+                    Contrast::Auto
+                },
+                ..MatchSettings::for_cost(cost, range)
+            }
         } else {
             MatchSettings::raw(range)
         };
         let started = Instant::now();
         let out = match_pair(&pair.left, &pair.right, cost, &settings).expect("match");
+        voted_inverted += usize::from(out.contrast.is_some_and(|c| c.inverted));
+        if let (Some(c), Ok(_)) = (out.contrast, std::env::var("ANAGLYPH_VOTES")) {
+            eprintln!(
+                "{}: inverted share {:.3} of {} windows",
+                pair.label, c.inverted_share, c.windows
+            );
+        }
         seconds += started.elapsed().as_secs_f64();
         megapixels += (pair.left.width * pair.left.height) as f64 / 1e6;
         for (e, t) in out.disparity.data.iter().zip(&pair.disparity) {
@@ -72,6 +93,7 @@ fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp:
         error: error_sum / error_count.max(1) as f64,
         density: 100.0 * valid as f64 / total.max(1) as f64,
         seconds_per_mpx_100d: seconds / megapixels / (max_disp as f64 / 100.0),
+        voted_inverted,
     }
 }
 
@@ -159,30 +181,53 @@ fn main() -> anyhow::Result<()> {
         let only: Vec<&str> = only.split(',').collect();
         costs.retain(|c| only.contains(&c.name()));
     }
-    let kinds = [PairKind::Heterogeneous, PairKind::Homogeneous];
+    let inverted: Vec<StereoPair> = pairs
+        .iter()
+        .filter(|p| p.kind == PairKind::Heterogeneous)
+        .map(|p| StereoPair {
+            right: negated(&p.right),
+            ..p.clone()
+        })
+        .collect();
+    let groups: [(&str, Vec<&StereoPair>); 3] = [
+        (
+            "heterogeneous",
+            pairs
+                .iter()
+                .filter(|p| p.kind == PairKind::Heterogeneous)
+                .collect(),
+        ),
+        (
+            "homogeneous",
+            pairs
+                .iter()
+                .filter(|p| p.kind == PairKind::Homogeneous)
+                .collect(),
+        ),
+        ("inverted", inverted.iter().collect()),
+    ];
     println!(
-        "| cost | chain | pairs | bad-2.0 % | avg error px | density % | s / Mpx / 100 disp |"
+        "| cost | chain | pairs | bad-2.0 % | avg error px | density % | s / Mpx / 100 disp | voted inverted |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for cost in &costs {
         for refine in [false, true] {
-            for kind in kinds {
-                let subset: Vec<&StereoPair> = pairs.iter().filter(|p| p.kind == kind).collect();
-                let s = score(&subset, cost, refine, max_disp);
+            for (name, subset) in &groups {
+                let s = score(subset, cost, refine, max_disp);
                 println!(
-                    "| {} | {} | {} ({}) | {:.1} | {:.2} | {:.1} | {:.2} |",
+                    "| {} | {} | {name} ({}) | {:.1} | {:.2} | {:.1} | {:.2} | {} |",
                     cost.name(),
                     if refine { "refined" } else { "raw" },
-                    if kind == PairKind::Heterogeneous {
-                        "heterogeneous"
-                    } else {
-                        "homogeneous"
-                    },
                     subset.len(),
                     s.bad2,
                     s.error,
                     s.density,
-                    s.seconds_per_mpx_100d
+                    s.seconds_per_mpx_100d,
+                    if refine {
+                        s.voted_inverted.to_string()
+                    } else {
+                        "-".into()
+                    }
                 );
             }
         }

@@ -77,6 +77,18 @@ pub enum ChannelChoice {
     B,
 }
 
+/// How `match` treats the sign of the pair's contrast.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ContrastChoice {
+    /// Vote on the sign of the windows' correlations and negate the right image when the
+    /// pair inverts (red against cyan filters).
+    Auto,
+    /// The right image as it is.
+    Same,
+    /// The right image negated: the pair is known to invert.
+    Inverted,
+}
+
 /// What the left–right stage does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum LeftRightChoice {
@@ -122,6 +134,9 @@ pub struct MatchArgs {
     pub preview: Option<PathBuf>,
     #[arg(long, value_enum, default_value_t = ChannelChoice::Luminance)]
     pub channel: ChannelChoice,
+    /// Whether the pair's contrast is inverted (bright in one filter, dark in the other).
+    #[arg(long, value_enum, default_value_t = ContrastChoice::Auto)]
+    pub contrast: ContrastChoice,
     /// Skip cross-based cost aggregation (only the accurate chain uses it).
     #[arg(long, help_heading = "Ablation")]
     pub no_aggregation: bool,

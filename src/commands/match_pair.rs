@@ -3,11 +3,12 @@
 //! report of the settings and per-stage timings.
 
 use super::{check_output_file, format_seconds};
-use crate::cli::{ChannelChoice, LeftRightChoice, MatchArgs, MatchMethod};
+use crate::cli::{ChannelChoice, ContrastChoice, LeftRightChoice, MatchArgs, MatchMethod};
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
 use anaglyph_core::stereo::{
-    match_pair, DisparityRange, GreyImage, LeftRight, MatchSettings, MatchingCost, MatchingNetwork,
+    match_pair, Contrast, DisparityRange, GreyImage, LeftRight, MatchSettings, MatchingCost,
+    MatchingNetwork,
 };
 use std::path::Path;
 use std::time::Instant;
@@ -149,6 +150,11 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     if args.no_bilateral {
         settings.bilateral = None;
     }
+    settings.contrast = match args.contrast {
+        ContrastChoice::Auto => Contrast::Auto,
+        ContrastChoice::Same => Contrast::Same,
+        ContrastChoice::Inverted => Contrast::Inverted,
+    };
     let bar = spinner(format!(
         "matching {}×{} with {} over disparities {range}",
         left.width,
@@ -176,6 +182,18 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         100.0 * valid as f64 / map.data.len().max(1) as f64,
         format_seconds(total)
     );
+    if let Some(vote) = &out.contrast {
+        eprintln!(
+            "  contrast {} ({:.0} % of {} windows' correlation weight negative)",
+            if vote.inverted {
+                "inverted: the right image was negated"
+            } else {
+                "the same"
+            },
+            100.0 * vote.inverted_share,
+            vote.windows
+        );
+    }
     for (stage, seconds) in &out.timings {
         eprintln!(
             "  {stage:<24} {:>10}  ({:.3} s per Mpx per 100 disparities)",
@@ -192,6 +210,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             "width": map.width,
             "height": map.height,
             "valid_fraction": valid as f64 / map.data.len().max(1) as f64,
+            "contrast": out.contrast,
             "settings": format!("{settings:?}"),
             "timings_s": out.timings.iter().map(|(k, v)| serde_json::json!({"stage": k, "seconds": v})).collect::<Vec<_>>(),
             "total_s": total,

@@ -1,9 +1,11 @@
 //! The whole stereo chain for one rectified pair (paper section 2.2):
-//! `cost -> cross-based aggregation -> SGM -> cross-based aggregation -> winner-take-all
-//! -> left–right check and filling -> subpixel -> 5×5 median -> bilateral`, every stage
+//! `contrast -> cost -> cross-based aggregation -> SGM -> cross-based aggregation ->
+//! winner-take-all -> left–right check and filling -> subpixel -> 5×5 median -> bilateral`
+//! (the right image negated first when the pair inverts contrast, [`Contrast`]), every stage
 //! switchable for ablation, with per-stage timings. Costs: the learned MC-CNN (fast or
 //! accurate), census, ZNCC, and mutual information (iterated from census disparities).
 
+use super::contrast::{estimate_contrast, negated, Contrast, ContrastEstimate};
 use super::{
     bilateral_filter, census_cost_volume, classify, cross_based_aggregation, fill_inconsistent,
     learned_cost_volume, median_filter, mutual_information_cost_volume, normalise_image,
@@ -65,6 +67,8 @@ pub struct MatchSettings {
     pub subpixel_window: Option<usize>,
     pub median: bool,
     pub bilateral: Option<Bilateral>,
+    /// Whether the right image is negated first ([`Contrast`]).
+    pub contrast: Contrast,
 }
 
 impl MatchSettings {
@@ -84,6 +88,7 @@ impl MatchSettings {
                 threshold: 5.0,
                 radius: 5,
             }),
+            contrast: Contrast::Same,
         }
     }
 
@@ -134,6 +139,7 @@ impl MatchSettings {
             subpixel_window: None,
             median: false,
             bilateral: None,
+            contrast: Contrast::Same,
         }
     }
 
@@ -160,6 +166,8 @@ impl MatchSettings {
 #[derive(Debug, Clone)]
 pub struct MatchOutput {
     pub disparity: DisparityMap,
+    /// The vote on the pair's contrast, when [`Contrast::Auto`] asked for one.
+    pub contrast: Option<ContrastEstimate>,
     /// (stage, seconds) in the order run.
     pub timings: Vec<(&'static str, f64)>,
 }
@@ -238,6 +246,17 @@ pub fn match_pair(
         timings.push((name, clock.elapsed().as_secs_f64()));
         clock = Instant::now();
     };
+    let (inverted, contrast) = match settings.contrast {
+        Contrast::Same => (false, None),
+        Contrast::Inverted => (true, None),
+        Contrast::Auto => {
+            let vote = estimate_contrast(&unit_range(left), &unit_range(right), range);
+            lap("contrast vote", &mut timings);
+            (vote.inverted, Some(vote))
+        }
+    };
+    let negated_right = inverted.then(|| negated(right));
+    let right = negated_right.as_ref().unwrap_or(right);
     let (left_unit, right_unit) = (unit_range(left), unit_range(right));
     let sgm_or_raw = |volume: CostVolume| match &settings.sgm {
         Some(p) => semi_global_matching(&volume, &left_unit, &right_unit, p),
@@ -318,6 +337,7 @@ pub fn match_pair(
             },
             disparity,
         )?,
+        contrast,
         timings,
     })
 }
@@ -361,6 +381,7 @@ pub fn match_vertical(
             },
             back.data,
         )?,
+        contrast: out.contrast,
         timings: out.timings,
     })
 }

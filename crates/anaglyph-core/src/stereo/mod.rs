@@ -8,6 +8,7 @@
 //! median and bilateral filtering, chained by [`match_pair`].
 
 mod census;
+mod contrast;
 mod cost_volume;
 mod cross_aggregation;
 mod disparity_filters;
@@ -21,6 +22,7 @@ mod winograd;
 mod zncc;
 
 pub use census::census_cost_volume;
+pub use contrast::{estimate_contrast, negated, Contrast, ContrastEstimate, INVERTED_SHARE};
 pub use cost_volume::{CostVolume, DisparityRange, GreyImage};
 pub use cross_aggregation::{cross_based_aggregation, CrossAggregation};
 pub use disparity_filters::{
