@@ -13,6 +13,7 @@ Needs numpy and pillow (for --figure), and a release build.
 """
 import argparse, json, os, re, subprocess, sys, tempfile, tomllib
 import numpy as np
+from anaglyph_files import camera_layout, read_envi, read_pfm
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "target", "release", "anaglyph")
@@ -24,37 +25,6 @@ def run(work, *args):
     if out.returncode != 0:
         sys.exit(f"anaglyph {' '.join(args)} failed:\n{out.stderr}")
     return out.stdout
-
-
-def read_pfm(path):
-    with open(path, "rb") as f:
-        assert f.readline().strip() == b"Pf"
-        w, h = map(int, f.readline().split())
-        scale = float(f.readline())
-        data = np.fromfile(f, dtype="<f4" if scale < 0 else ">f4").reshape(h, w)
-    return data[::-1]
-
-
-def read_envi(base):
-    header = open(base + ".hdr").read()
-    field = lambda key: int(re.search(key + r"\s*=\s*(\d+)", header).group(1))
-    w, h, b = field("samples"), field("lines"), field("bands")
-    data = np.fromfile(base + ".img", dtype="<f4")
-    layout = re.search(r"interleave\s*=\s*(\w+)", header).group(1)
-    if layout == "bip":
-        return data.reshape(h, w, b)
-    if layout == "bsq":
-        return data.reshape(b, h, w).transpose(1, 2, 0)
-    return data.reshape(h, b, w).transpose(0, 2, 1)
-
-
-def cameras(rig):
-    """(names, positions in mm, index of the reference) of a rig given by position_mm."""
-    entries = rig["camera"]
-    names = [c["name"] for c in entries]
-    positions = [tuple(c["position_mm"]) for c in entries]
-    reference = next((k for k, c in enumerate(entries) if c.get("reference")), 0)
-    return names, positions, reference
 
 
 def write_true_homographies(work, names, positions, reference, focal):
@@ -123,10 +93,8 @@ def main():
         run(work, "simulate", "--scene", scene, "--rig", args.rig, "--size", args.size,
             "--out", out, "--force")
     rig = tomllib.load(open(os.path.join(work, "sim/rig.toml"), "rb"))
-    names, positions, reference = cameras(rig)
+    names, positions, unit, reference = camera_layout(rig)
     focal = rig["focal_length_px"]
-    unit = min(np.hypot(a[0] - b[0], a[1] - b[1])
-               for i, a in enumerate(positions) for b in positions[i + 1:])
     view = names[reference]
     write_true_homographies(work, names, positions, reference, focal)
     print(run(work, "calibrate", "--checkerboard", "9x6", "--images", "board/captures",

@@ -469,7 +469,7 @@ pub struct CalibrateArgs {
     /// the whole board must be seen by every camera.
     #[arg(long)]
     pub checkerboard: BoardPattern,
-    /// Folder of checkerboard captures named r{row}c{col}.png|tif, one per camera.
+    /// Folder of checkerboard captures named <camera>.png|tif (e.g. r0c1.png), one per camera.
     #[arg(long)]
     pub images: PathBuf,
     /// Rig file (TOML): which cameras there are.
@@ -728,13 +728,13 @@ pub struct ReconstructArgs {
     /// wrote is replaced whole without asking; one holding the inputs never is).
     #[arg(long)]
     pub force: bool,
-    /// Folder of captures named r{row}c{col}.png|tif (default: the rig's `image` paths).
+    /// Folder of captures named <camera>.png|tif, e.g. r0c1.png (default: the rig's `image` paths).
     #[arg(long)]
     pub captures: Option<PathBuf>,
-    /// Folder of white-board captures named r{row}c{col}.png|tif (default: the rig's `white`).
+    /// Folder of white-board captures named <camera>.png|tif (default: the rig's `white`).
     #[arg(long)]
     pub white: Option<PathBuf>,
-    /// Folder of OpenCV FileStorage calibrations named r{row}c{col}.json|yml|yaml
+    /// Folder of calibrations named <camera>.json|yml|yaml|npy
     /// (default: the rig's `calibration` paths); with them the array is rectified first.
     #[arg(long)]
     pub calibration: Option<PathBuf>,

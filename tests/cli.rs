@@ -48,18 +48,6 @@ fn eval_psnr(dir: &Path, recon: &str) -> f64 {
     report["mean_psnr"].as_f64().unwrap()
 }
 
-/// Writes `dir/mono.csv`, a panchromatic monochrome sensor curve: the sum of the Canon's
-/// three channels.
-fn write_monochrome_sensor(dir: &Path) {
-    let canon = std::fs::read_to_string("data/spectra/sensors/canon_eos_5d_mark_ii.csv").unwrap();
-    let mut mono = String::from("wavelength_nm,mono\n");
-    for line in canon.lines().skip(1) {
-        let v: Vec<f64> = line.split(',').map(|s| s.parse().unwrap()).collect();
-        mono.push_str(&format!("{},{}\n", v[0], v[1] + v[2] + v[3]));
-    }
-    std::fs::write(dir.join("mono.csv"), mono).unwrap();
-}
-
 /// A failed run: non-zero exit, an "error:" line, no panic.
 fn assert_clean_failure(o: &Output, needle: &str) {
     assert!(!o.status.success(), "should fail: {}", stdout(o));

@@ -3,7 +3,7 @@
 //! `reconstruct` searches along every pair's own baseline (60° apart), and scores like the
 //! same pipeline fed the true homographies.
 
-use super::{anaglyph, eval_psnr, stderr, stdout, write_monochrome_sensor};
+use super::{anaglyph, eval_psnr, stderr, stdout};
 use anaglyph_core::evaluation::seen_by_all_views;
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::register::ArrayGeometry;
@@ -35,9 +35,8 @@ fn name(k: usize) -> String {
 /// `dir/hex.toml`, `dir/board.toml` (a 9×6 checkerboard of 80 mm squares at
 /// [`PLANE_MM`] before a grey wall), and their simulations `sim` and `board` at 320×240.
 fn simulate_hexagon(dir: &Path) {
-    write_monochrome_sensor(dir);
     let mut rig = format!(
-        "name = \"hex7\"\nfocal_length_px = {FOCAL_PX}\nsensor = \"mono.csv\"\n\
+        "name = \"hex7\"\nfocal_length_px = {FOCAL_PX}\nsensor = \"builtin:panchromatic\"\n\
          illuminant = \"builtin:cie_d65\"\n\
          [reconstruction]\nstart_nm = 440.0\nstep_nm = 30.0\ncount = 7\n"
     );

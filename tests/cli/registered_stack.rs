@@ -2,20 +2,18 @@
 //! `reconstruct --output both` writes every view's registered stack beside its cube, and
 //! the stack of the estimated disparities is close to the one of the true disparities.
 
-use super::{anaglyph, assert_clean_failure, stderr, write_monochrome_sensor};
+use super::{anaglyph, assert_clean_failure, stderr};
 use anaglyph_core::io::{read_envi, EnviCube};
 use std::path::Path;
 
 const CENTRES_NM: [u32; 6] = [460, 500, 540, 580, 620, 660];
 const VIEWS: [&str; 6] = ["r0c0", "r0c1", "r0c2", "r1c0", "r1c1", "r1c2"];
 
-/// A 2×3 array of monochrome cameras ([`write_monochrome_sensor`]) behind 40 nm wide
-/// filters, rendered at 160×120 under `dir/sim`.
+/// A 2×3 array of monochrome cameras (`builtin:panchromatic`) behind 40 nm wide filters, rendered at 160×120 under `dir/sim`.
 fn simulate_monochrome(dir: &Path) {
-    write_monochrome_sensor(dir);
     let mut rig = String::from(
         "name = \"mono-2x3\"\nrows = 2\ncols = 3\nfocal_length_px = 450.0\n\
-         sensor = \"mono.csv\"\nilluminant = \"builtin:cie_d65\"\n\
+         sensor = \"builtin:panchromatic\"\nilluminant = \"builtin:cie_d65\"\n\
          [baseline_mm]\nhorizontal = 30.0\nvertical = 30.0\n\
          [reconstruction]\nstart_nm = 460.0\nstep_nm = 40.0\ncount = 6\n",
     );

@@ -1,10 +1,10 @@
 //! The output folder of `anaglyph calibrate --checkerboard`:
 //!
 //! ```text
-//! OUT/r{row}c{col}.json      OpenCV FileStorage: `homography` (camera pixel -> reference
+//! OUT/<camera>.json         OpenCV FileStorage: `homography` (camera pixel -> reference
 //!                            pixel), image_width, image_height; what the rig's
 //!                            `calibration` key and `reconstruct --calibration OUT` read
-//! OUT/corners/r{row}c{col}.png  the capture with its detected corners (first one green)
+//! OUT/corners/<camera>.png  the capture with its detected corners (first one green)
 //! OUT/manifest.json          pattern, model, reference, per-camera residuals (RMS and
 //!                            largest, px), time, the run id and every file with its CRC
 //! ```

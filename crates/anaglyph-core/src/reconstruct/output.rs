@@ -2,15 +2,15 @@
 //! tools rely on:
 //!
 //! ```text
-//! OUT/views/r{row}c{col}.hdr + .img      ENVI float32 reflectance, bands with wavelengths
-//! OUT/disparity/r{row}c{col}.pfm         disparity per column step (+inf: unknown)
-//! OUT/disparity/r{row}c{col}.png         colour-mapped preview (near warm, far cool)
-//! OUT/preview/r{row}c{col}_pseudo.png    through the camera's RGB curves (the paper)
-//! OUT/preview/r{row}c{col}_srgb.png      CIE 1931 under D65
-//! OUT/probes/r{row}c{col}.svg            spectra at the --probe pixels (with truth if known)
-//! OUT/registered/r{row}c{col}.hdr + .img every camera warped into the view (with
+//! OUT/views/<camera>.hdr + .img          ENVI float32 reflectance, bands with wavelengths
+//! OUT/disparity/<camera>.pfm             disparity per disparity baseline (+inf: unknown)
+//! OUT/disparity/<camera>.png             colour-mapped preview (near warm, far cool)
+//! OUT/preview/<camera>_pseudo.png        through the camera's RGB curves (the paper)
+//! OUT/preview/<camera>_srgb.png          CIE 1931 under D65
+//! OUT/probes/<camera>.svg                spectra at the --probe pixels (with truth if known)
+//! OUT/registered/<camera>.hdr + .img     every camera warped into the view (with
 //!                                        --output registered or both; NaN: unseen)
-//! OUT/registered/r{row}c{col}_seen.png   how many cameras see each pixel (white: all)
+//! OUT/registered/<camera>_seen.png       how many cameras see each pixel (white: all)
 //! OUT/manifest.json                      inputs, parameters, calibration, rectification,
 //!                                        visibility, per-stage timings, warnings, the
 //!                                        run id and every file with its size and CRC-32

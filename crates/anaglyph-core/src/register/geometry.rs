@@ -8,7 +8,7 @@
 //! each view's neighbours, its nearest view along a row or a column, and which views are
 //! inside the array.
 
-use crate::rig::Rig;
+use crate::rig::{grid_name, Rig};
 use serde::Serialize;
 
 /// Coordinates (in disparity baselines) closer than this are the same row or column.
@@ -42,7 +42,7 @@ impl ArrayGeometry {
     pub fn grid(rows: usize, cols: usize, baseline_ratio: f64) -> Self {
         let cells = (0..rows * cols).map(|i| (i / cols, i % cols));
         ArrayGeometry {
-            names: cells.clone().map(|(r, c)| format!("r{r}c{c}")).collect(),
+            names: cells.clone().map(|(r, c)| grid_name(r, c)).collect(),
             positions: cells
                 .map(|(r, c)| [c as f64, r as f64 * baseline_ratio])
                 .collect(),

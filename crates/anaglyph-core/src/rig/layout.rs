@@ -10,7 +10,7 @@
 //! no camera far from every other. Disparities are measured per [`disparity_baseline_mm`]:
 //! a grid's horizontal baseline, or a free layout's shortest distance between two cameras.
 
-use super::{CameraEntry, RigFile, MAX_RIG_SIDE};
+use super::{RigFile, MAX_RIG_SIDE};
 use crate::{Error, Result};
 
 /// Most cameras of a rig with free positions.
@@ -157,7 +157,10 @@ fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
                 )
             })?;
             Ok(Placement {
-                name: grid_name(&file.cameras[entry], row, col),
+                name: file.cameras[entry]
+                    .name
+                    .clone()
+                    .unwrap_or_else(|| grid_name(row, col)),
                 position_mm: [col as f64 * b.horizontal, row as f64 * b.vertical],
                 entry,
             })
@@ -165,9 +168,9 @@ fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
         .collect()
 }
 
-/// A grid camera's name: its own, or `r<row>c<col>`.
-fn grid_name(cam: &CameraEntry, row: usize, col: usize) -> String {
-    cam.name.clone().unwrap_or_else(|| format!("r{row}c{col}"))
+/// The name of the camera at (row, col) of a grid that does not name it.
+pub fn grid_name(row: usize, col: usize) -> String {
+    format!("r{row}c{col}")
 }
 
 /// Free positions, in file order: finite, distinct, none far from every other.

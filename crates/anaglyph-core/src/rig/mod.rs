@@ -8,7 +8,7 @@ mod response_plot;
 mod rig_file;
 mod sensing;
 
-pub use layout::{MAX_FREE_CAMERAS, MAX_NEIGHBOUR_SPACING};
+pub use layout::{grid_name, MAX_FREE_CAMERAS, MAX_NEIGHBOUR_SPACING};
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
     curve_file, resolve_curve, Baseline, Camera, CameraEntry, ReconstructionSettings, Rig, RigFile,

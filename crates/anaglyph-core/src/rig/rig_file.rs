@@ -307,7 +307,7 @@ impl RigFile {
                 .name
                 .clone()
                 .unwrap_or_else(|| match (cam.row, cam.col) {
-                    (Some(r), Some(c)) => format!("r{r}c{c}"),
+                    (Some(r), Some(c)) => super::layout::grid_name(r, c),
                     _ => "given by position_mm".into(),
                 });
             if let Some(b) = cam.black_level {

@@ -50,7 +50,7 @@ pub struct EffectiveResponses {
     pub weights: Vec<f64>,
     /// `rows[r][t]`: response of channel r at `grid.wavelength(t)`.
     pub rows: Vec<Vec<f64>>,
-    /// "r{row}c{col}:{channel}" per row ("r{row}c{col}" for a monochrome camera).
+    /// "<camera>:{channel}" per row ("<camera>" for a monochrome camera).
     pub labels: Vec<String>,
     /// Camera index (in rig order) of each row.
     pub camera_of_row: Vec<usize>,
