@@ -64,7 +64,8 @@ pub fn detect_board(
 }
 
 /// The labelled corners row by row when they are exactly the `cols × rows` grid (or the
-/// `rows × cols` one, a board turned a quarter); None otherwise.
+/// `rows × cols` one, a board turned a quarter), ordered as the image shows them (see
+/// [`as_the_image_shows`]); None otherwise.
 fn in_board_order(
     labelled: &[(i32, i32, [f64; 2])],
     pattern: BoardPattern,
@@ -82,7 +83,88 @@ fn in_board_order(
     for &(u, v, p) in labelled {
         ordered[v as usize * cols + u as usize] = Some(p);
     }
-    ordered.into_iter().collect()
+    let ordered: Vec<[f64; 2]> = ordered.into_iter().collect::<Option<_>>()?;
+    Some(as_the_image_shows(ordered, cols, rows))
+}
+
+/// A grid of corners (`cols × rows`, row-major in the detector's labels) reordered so that
+/// its rows run left to right and follow each other top to bottom in the image, whatever
+/// corner and direction the detector's labels started from: every camera of an array then
+/// gives each corner the same place, and the maps between them stay near translations.
+fn as_the_image_shows(grid: Vec<[f64; 2]>, cols: usize, rows: usize) -> Vec<[f64; 2]> {
+    let at = |g: &[[f64; 2]], c: usize, u: usize, v: usize| g[v * c + u];
+    // Mean steps along the labels' u and v.
+    let step = |g: &[[f64; 2]], c: usize, r: usize, along_u: bool| {
+        let (mut dx, mut dy) = (0.0, 0.0);
+        for v in 0..r {
+            for u in 0..c {
+                let next = if along_u { (u + 1, v) } else { (u, v + 1) };
+                if next.0 < c && next.1 < r {
+                    let (a, b) = (at(g, c, u, v), at(g, c, next.0, next.1));
+                    dx += b[0] - a[0];
+                    dy += b[1] - a[1];
+                }
+            }
+        }
+        (dx, dy)
+    };
+    let (mut grid, mut cols, mut rows) = (grid, cols, rows);
+    let (ux, uy) = step(&grid, cols, rows, true);
+    if ux.abs() < uy.abs() {
+        // The labels' rows run down the image: transpose.
+        grid = (0..cols * rows)
+            .map(|i| at(&grid, cols, i / rows, i % rows))
+            .collect();
+        (cols, rows) = (rows, cols);
+    }
+    let (ux, _) = step(&grid, cols, rows, true);
+    let (_, vy) = step(&grid, cols, rows, false);
+    (0..cols * rows)
+        .map(|i| {
+            let (u, v) = (i % cols, i / cols);
+            let u = if ux < 0.0 { cols - 1 - u } else { u };
+            let v = if vy < 0.0 { rows - 1 - v } else { v };
+            at(&grid, cols, u, v)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 4 × 3 grid seen slightly rotated, labelled from each of its corners in both
+    /// orders: every labelling comes out in the same image order.
+    #[test]
+    fn any_labelling_comes_out_in_image_order() {
+        let (cols, rows) = (4usize, 3usize);
+        let point = |u: usize, v: usize| {
+            let (x, y) = (20.0 * u as f64, 20.0 * v as f64);
+            [100.0 + x - 0.1 * y, 50.0 + y + 0.1 * x]
+        };
+        let expected: Vec<[f64; 2]> = (0..cols * rows)
+            .map(|i| point(i % cols, i / cols))
+            .collect();
+        for flip_u in [false, true] {
+            for flip_v in [false, true] {
+                for transpose in [false, true] {
+                    // The detector's labels (lu, lv) of image corner (u, v).
+                    let labelled: Vec<(i32, i32, [f64; 2])> = (0..cols * rows)
+                        .map(|i| {
+                            let (u, v) = (i % cols, i / cols);
+                            let u2 = if flip_u { cols - 1 - u } else { u };
+                            let v2 = if flip_v { rows - 1 - v } else { v };
+                            let (lu, lv) = if transpose { (v2, u2) } else { (u2, v2) };
+                            (lu as i32, lv as i32, point(u, v))
+                        })
+                        .collect();
+                    let pattern = BoardPattern { cols, rows };
+                    let ordered = in_board_order(&labelled, pattern).unwrap();
+                    assert_eq!(ordered, expected, "{flip_u} {flip_v} {transpose}");
+                }
+            }
+        }
+    }
 }
 
 /// `image` between its 1st and 99th percentiles, as 8 bits.
