@@ -129,6 +129,35 @@ fn as_the_image_shows(grid: Vec<[f64; 2]>, cols: usize, rows: usize) -> Vec<[f64
         .collect()
 }
 
+/// `image` between its 1st and 99th percentiles, as 8 bits.
+pub(super) fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
+    let mut sorted: Vec<f32> = image
+        .data
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    sorted.sort_by(f32::total_cmp);
+    let pick = |q: usize| sorted.get(sorted.len() * q / 100).copied().unwrap_or(0.0);
+    let (lo, hi) = (pick(1), pick(99));
+    let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
+    image
+        .data
+        .iter()
+        .map(|&v| ((v - lo) * scale).clamp(0.0, 255.0).round() as u8)
+        .collect()
+}
+
+/// `image` blurred by a Gaussian of `sigma` pixels.
+fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
+    GreyImage {
+        channels: 1,
+        width: image.width,
+        height: image.height,
+        data: gaussian_blur_plane(image.width, image.height, image.data.clone(), sigma),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -164,34 +193,5 @@ mod tests {
                 }
             }
         }
-    }
-}
-
-/// `image` between its 1st and 99th percentiles, as 8 bits.
-pub(super) fn stretched_8bit(image: &GreyImage) -> Vec<u8> {
-    let mut sorted: Vec<f32> = image
-        .data
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    sorted.sort_by(f32::total_cmp);
-    let pick = |q: usize| sorted.get(sorted.len() * q / 100).copied().unwrap_or(0.0);
-    let (lo, hi) = (pick(1), pick(99));
-    let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
-    image
-        .data
-        .iter()
-        .map(|&v| ((v - lo) * scale).clamp(0.0, 255.0).round() as u8)
-        .collect()
-}
-
-/// `image` blurred by a Gaussian of `sigma` pixels.
-fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
-    GreyImage {
-        channels: 1,
-        width: image.width,
-        height: image.height,
-        data: gaussian_blur_plane(image.width, image.height, image.data.clone(), sigma),
     }
 }

@@ -197,6 +197,19 @@ pub fn common_signal_images(views: &[NormalisedView], signal: &CommonSignal) -> 
         .iter()
         .zip(&signal.weights)
         .map(|(view, weights)| {
+            // A one-channel camera's estimate is its capture scaled, and the matcher
+            // normalises every image, so only the sign of its weight matters: ±1 makes the
+            // images of signals of one sign equal, and their features are computed once.
+            let sign_only = [match weights.first() {
+                Some(&g) if g > 0.0 => 1.0,
+                Some(&g) if g < 0.0 => -1.0,
+                _ => 0.0,
+            }];
+            let weights: &[f64] = if view.image.channels == 1 {
+                &sign_only
+            } else {
+                weights
+            };
             let mut data: Vec<f32> = view
                 .image
                 .data

@@ -8,7 +8,7 @@
 //! of its second-moment matrix (fitted once, on one view, and shared by all views so that
 //! cosines stay comparable) and normalised again.
 
-use crate::stereo::{tower_features, FeatureMap, GreyImage, MatchingNetwork};
+use crate::stereo::FeatureMap;
 use crate::{Error, Result};
 use faer::{Mat, Side};
 use rayon::prelude::*;
@@ -139,25 +139,8 @@ impl FeatureProjection {
             });
     }
 
-    /// The merged, unit-length features of a view's matching images (`images` in the
-    /// order the projection was fitted with), computed one image at a time.
-    pub fn merged_features(
-        &self,
-        network: &MatchingNetwork,
-        images: &[&GreyImage],
-    ) -> Result<FeatureMap> {
-        if images.len() != self.images() {
-            return Err(Error::mismatch(
-                "feature projection",
-                format!("{} images", images.len()),
-                format!("{}, as the projection was fitted on", self.images()),
-            ));
-        }
-        self.merge(images.iter().map(|image| tower_features(network, image)))
-    }
-
-    /// [`Self::merged_features`] of maps already computed (one per matching image, in the
-    /// order the projection was fitted with).
+    /// The merged, unit-length features of a view's matching images, from their feature
+    /// maps (one per matching image, in the order the projection was fitted with).
     pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
         if maps.len() != self.images() {
             return Err(Error::mismatch(

@@ -247,6 +247,21 @@ fn matching_images(view: &ViewImage) -> Vec<&GreyImage> {
     }
 }
 
+/// The network's features of each of `images`, computed once for images that are equal
+/// (a monochrome camera's common-signal images differ only in sign,
+/// [`super::common_signal_images`]).
+fn distinct_features(network: &MatchingNetwork, images: &[&GreyImage]) -> Vec<FeatureMap> {
+    let mut maps: Vec<FeatureMap> = Vec::with_capacity(images.len());
+    for (k, image) in images.iter().enumerate() {
+        let map = match images[..k].iter().position(|earlier| earlier.data == image.data) {
+            Some(j) => maps[j].clone(),
+            None => tower_features(network, image),
+        };
+        maps.push(map);
+    }
+    maps
+}
+
 /// Every view's compact features: the network's features of its matching images, merged
 /// by a [`FeatureProjection`] fitted on the first view when there are several; pixels a
 /// view did not measure get a zero feature (a neutral cost of 0.5).
@@ -254,10 +269,7 @@ fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<
     // The first view's maps fit the projection and are then merged themselves, not
     // computed again (a ninth of the network's work for three signals).
     let (projection, mut first_maps) = if matching_images(&images[0]).len() > 1 {
-        let maps: Vec<FeatureMap> = matching_images(&images[0])
-            .into_iter()
-            .map(|image| tower_features(network, image))
-            .collect();
+        let maps = distinct_features(network, &matching_images(&images[0]));
         let dims = maps[0].channels;
         let fitted = FeatureProjection::fit(&maps, dims)?;
         tracing::info!(
@@ -273,7 +285,7 @@ fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<
         .map(|v| -> Result<CompactFeatures> {
             let map = match (&projection, first_maps.take()) {
                 (Some(p), Some(maps)) => p.merged_maps(maps)?,
-                (Some(p), None) => p.merged_features(network, &matching_images(v))?,
+                (Some(p), None) => p.merged_maps(distinct_features(network, &matching_images(v)))?,
                 (None, _) => tower_features(network, matching_images(v)[0]),
             };
             let mut compact = CompactFeatures::from(map);
