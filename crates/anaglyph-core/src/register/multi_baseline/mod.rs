@@ -253,7 +253,10 @@ fn matching_images(view: &ViewImage) -> Vec<&GreyImage> {
 fn distinct_features(network: &MatchingNetwork, images: &[&GreyImage]) -> Vec<FeatureMap> {
     let mut maps: Vec<FeatureMap> = Vec::with_capacity(images.len());
     for (k, image) in images.iter().enumerate() {
-        let map = match images[..k].iter().position(|earlier| earlier.data == image.data) {
+        let map = match images[..k]
+            .iter()
+            .position(|earlier| earlier.data == image.data)
+        {
             Some(j) => maps[j].clone(),
             None => tower_features(network, image),
         };
@@ -285,7 +288,9 @@ fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<
         .map(|v| -> Result<CompactFeatures> {
             let map = match (&projection, first_maps.take()) {
                 (Some(p), Some(maps)) => p.merged_maps(maps)?,
-                (Some(p), None) => p.merged_maps(distinct_features(network, &matching_images(v)))?,
+                (Some(p), None) => {
+                    p.merged_maps(distinct_features(network, &matching_images(v)))?
+                }
                 (None, _) => tower_features(network, matching_images(v)[0]),
             };
             let mut compact = CompactFeatures::from(map);
