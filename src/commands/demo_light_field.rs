@@ -3,7 +3,7 @@
 //! simulator's true disparities (the registration ceiling), scored as the paper's Table 1,
 //! and written in `reconstruct`'s layout for the report.
 
-use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
+use anaglyph_core::evaluation::{bad_pixel_share, score_cube, seen_by_all_views, BandScores};
 use anaglyph_core::io::write_disparity_preview;
 use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{
@@ -191,15 +191,7 @@ pub fn run_presets(
             height,
             [0.0, max_true],
         )?;
-        let bad = field.views[0]
-            .disparity
-            .data
-            .iter()
-            .zip(truth_map)
-            .filter(|(_, t)| t.is_finite())
-            .fold((0usize, 0usize), |(b, n), (e, t)| {
-                (b + usize::from((e - t).abs() > 2.0 || e.is_nan()), n + 1)
-            });
+        let bad_2 = bad_pixel_share(&field.views[0].disparity.data, truth_map, None, 2.0);
         let estimated = scores(&field, &simulation, &geometry, seconds)?;
         pipeline.given_disparities = Some(simulation.disparity_maps());
         pipeline.registration.mode = RegistrationMode::Pairwise;
@@ -215,7 +207,7 @@ pub fn run_presets(
             name: name.to_string(),
             estimated,
             true_disparity,
-            reference_bad2: 100.0 * bad.0 as f64 / bad.1.max(1) as f64,
+            reference_bad2: 100.0 * bad_2,
         });
         if name == "tabletop" {
             tabletop = Some(simulation);

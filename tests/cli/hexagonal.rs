@@ -4,7 +4,7 @@
 //! same pipeline fed the true homographies.
 
 use super::{anaglyph, eval_psnr, stderr, stdout};
-use anaglyph_core::evaluation::seen_by_all_views;
+use anaglyph_core::evaluation::{bad_pixel_share, seen_by_all_views};
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::register::ArrayGeometry;
 use anaglyph_core::rig::Rig;
@@ -98,19 +98,9 @@ fn centre_bad_1(dir: &Path, recon: &str) -> f64 {
         .collect();
     let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0, 320, 240);
     let estimate = read_pfm(&dir.join(format!("{recon}/disparity/{}.pfm", name(0)))).unwrap();
-    let (bad, total) = estimate
-        .data
-        .iter()
-        .zip(&truth[0])
-        .zip(&seen)
-        .filter(|(_, &s)| s)
-        .fold((0, 0), |(b, n), ((e, t), _)| {
-            // NaN (no estimate) counts as wrong.
-            let right = (e - t).abs() <= 1.0;
-            (b + usize::from(!right), n + 1)
-        });
+    let total = seen.iter().filter(|&&s| s).count();
     assert!(total > 320 * 240 / 3, "{total} pixels seen by every camera");
-    bad as f64 / total as f64
+    bad_pixel_share(&estimate.data, &truth[0], Some(&seen), 1.0)
 }
 
 #[test]

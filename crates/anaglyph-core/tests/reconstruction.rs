@@ -8,7 +8,7 @@
 
 use anaglyph_core::builtin;
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
-use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
+use anaglyph_core::evaluation::{bad_pixel_share, score_cube, seen_by_all_views};
 use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{
@@ -716,17 +716,8 @@ fn an_irregular_layout_is_registered_along_every_pair_baseline() {
         .map(|v| v.disparity.clone())
         .collect();
     let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0, 160, 120);
-    let estimate = &field.views[0].disparity.data;
-    let (bad, total) = estimate
-        .iter()
-        .zip(&truth[0])
-        .zip(&seen)
-        .filter(|(_, &s)| s)
-        .fold((0, 0), |(b, n), ((e, t), _)| {
-            let right = (e - t).abs() <= 1.0;
-            (b + usize::from(!right), n + 1)
-        });
-    let bad_1 = bad as f64 / total as f64;
+    let total = seen.iter().filter(|&&s| s).count();
+    let bad_1 = bad_pixel_share(&field.views[0].disparity.data, &truth[0], Some(&seen), 1.0);
     let pairs = &field.views[0].pair_agreements;
     eprintln!(
         "irregular layout, cam0: bad-1 {:.2} % of {total} pixels every camera sees; \

@@ -15,6 +15,27 @@ use serde::Serialize;
 /// surface point to count as the same point, i.e. seen by both.
 pub const SAME_POINT_PX: f32 = 0.5;
 
+/// The share of pixels whose estimated disparity is more than `threshold_px` off the
+/// truth or missing (NaN), over the pixels with a finite truth where `mask` holds (None:
+/// all): bad-1 or bad-2 by `threshold_px`. NaN when no pixel counts.
+pub fn bad_pixel_share(
+    estimate: &[f32],
+    truth: &[f32],
+    mask: Option<&[bool]>,
+    threshold_px: f32,
+) -> f64 {
+    let (bad, total) = estimate
+        .iter()
+        .zip(truth)
+        .enumerate()
+        .filter(|&(i, (_, t))| t.is_finite() && mask.is_none_or(|m| m[i]))
+        .fold((0usize, 0usize), |(b, n), (_, (e, t))| {
+            let right = (e - t).abs() <= threshold_px;
+            (b + usize::from(!right), n + 1)
+        });
+    bad as f64 / total as f64
+}
+
 /// Scores of one view.
 #[derive(Debug, Clone, Serialize)]
 pub struct BandScores {

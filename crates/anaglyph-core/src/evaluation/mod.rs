@@ -7,7 +7,7 @@
 
 mod light_field;
 
-pub use light_field::{score_cube, seen_by_all_views, BandScores, SAME_POINT_PX};
+pub use light_field::{bad_pixel_share, score_cube, seen_by_all_views, BandScores, SAME_POINT_PX};
 
 use crate::capture::{measure_spectra, spectra_on_grid, CameraNoise};
 use crate::demux::{demultiplex, normalise_by_white, DemuxOptions, DemuxReport};
