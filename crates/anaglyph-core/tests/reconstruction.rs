@@ -40,16 +40,21 @@ fn tabletop_registered(
     file.focal_length_px = 450.0;
     file.calibration_plane_mm = plane_mm;
     let rig = Rig::from_file(file, ".".into()).unwrap();
+    let simulation = tabletop_through(&rig, 5, metamers);
+    (rig, simulation)
+}
+
+/// The tabletop seen by `rig` at 160×120 with the noise of `seed`.
+fn tabletop_through(rig: &Rig, seed: u64, metamers: Option<MetamerVariation>) -> Simulation {
     let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
     let settings = SimulationSettings {
         width: 160,
         height: 120,
-        seed: 5,
+        seed,
         metamers,
         ..SimulationSettings::default()
     };
-    let simulation = Simulation::run(&rig, &scene, settings).unwrap();
-    (rig, simulation)
+    Simulation::run(rig, &scene, settings).unwrap()
 }
 
 /// Maps per column step (the simulator's convention) as the pipeline takes them.
@@ -562,18 +567,7 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
     let path = dir.path().join("mono_rig.toml");
     file.save(&path).unwrap();
     let rig = Rig::load(&path).unwrap();
-    let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
-    let simulation = Simulation::run(
-        &rig,
-        &scene,
-        SimulationSettings {
-            width: 160,
-            height: 120,
-            seed: 5,
-            ..SimulationSettings::default()
-        },
-    )
-    .unwrap();
+    let simulation = tabletop_through(&rig, 5, None);
     let captures = ArrayCaptures::from_simulation(&simulation);
     assert!(captures.cameras.iter().all(|c| c.capture.channels == 1));
     let truth: Vec<Vec<f32>> = simulation
@@ -689,18 +683,7 @@ fn an_irregular_layout_is_registered_along_every_pair_baseline() {
     )
     .unwrap();
     assert!((rig.disparity_baseline_mm - 31.048).abs() < 1e-3);
-    let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
-    let simulation = Simulation::run(
-        &rig,
-        &scene,
-        SimulationSettings {
-            width: 160,
-            height: 120,
-            seed: 11,
-            ..SimulationSettings::default()
-        },
-    )
-    .unwrap();
+    let simulation = tabletop_through(&rig, 11, None);
     let captures = ArrayCaptures::from_simulation(&simulation);
     let network = MatchingNetwork::default_fast().unwrap();
     let mut pipeline = settings(

@@ -246,18 +246,23 @@ pub fn match_pair(
         timings.push((name, clock.elapsed().as_secs_f64()));
         clock = Instant::now();
     };
+    let (left_unit, given_right_unit) = (unit_range(left), unit_range(right));
     let (inverted, contrast) = match settings.contrast {
         Contrast::Same => (false, None),
         Contrast::Inverted => (true, None),
         Contrast::Auto => {
-            let vote = estimate_contrast(&unit_range(left), &unit_range(right), range);
+            let vote = estimate_contrast(&left_unit, &given_right_unit, range);
             lap("contrast vote", &mut timings);
             (vote.inverted, Some(vote))
         }
     };
     let negated_right = inverted.then(|| negated(right));
     let right = negated_right.as_ref().unwrap_or(right);
-    let (left_unit, right_unit) = (unit_range(left), unit_range(right));
+    let right_unit = if inverted {
+        unit_range(right)
+    } else {
+        given_right_unit
+    };
     let sgm_or_raw = |volume: CostVolume| match &settings.sgm {
         Some(p) => semi_global_matching(&volume, &left_unit, &right_unit, p),
         None => volume,
