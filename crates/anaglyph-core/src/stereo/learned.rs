@@ -1,31 +1,14 @@
-//! The learned cross-spectral matching cost (paper section 2.2, MC-CNN): each image,
-//! normalised by its own mean and standard deviation, goes through the network's
-//! convolutional tower (3×3 "same" convolutions: Winograd F(4×4, 3×3) + `gemm` where a
-//! layer has many inputs, im2col + `gemm` for the first; in row blocks over rayon); the fast network compares the L2-normalised features by cosine similarity, the
-//! accurate one runs its fully connected layers on every (pixel, disparity) pair. The
-//! result is an ordinary [`CostVolume`] in [0, 1] for the refinement chain.
+//! The learned cross-spectral matching cost (paper section 2.2, MC-CNN): each image goes
+//! through the network's convolutional tower ([`super::tower`]); the fast network
+//! compares the L2-normalised features by cosine similarity, the accurate one runs its
+//! fully connected layers on every (pixel, disparity) pair. The result is an ordinary
+//! [`CostVolume`] in [0, 1] for the refinement chain.
 
 use super::cost_volume::{matched_indices, right_column};
-use super::network::{ConvLayer, MatchingNetwork, KERNEL};
-use super::winograd::winograd_convolve;
+use super::network::MatchingNetwork;
+use super::tower::{tower_features, FeatureMap};
 use super::{CostVolume, DisparityRange, GreyImage};
 use rayon::prelude::*;
-
-/// Per-pixel feature vectors, `data[(y·width + x)·channels + k]`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FeatureMap {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    pub data: Vec<f32>,
-}
-
-impl FeatureMap {
-    pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
-        let i = (y * self.width + x) * self.channels;
-        &self.data[i..i + self.channels]
-    }
-}
 
 /// `dst = a · b` for row-major `a` (m × k), `b` (k × n), `dst` (m × n), single-threaded
 /// (callers parallelise over blocks).
@@ -59,120 +42,6 @@ pub(crate) fn matmul(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, 
             gemm::Parallelism::None,
         );
     }
-}
-
-/// The image shifted to zero mean and scaled to unit standard deviation (MC-CNN's input
-/// normalisation); a constant image becomes all zeros.
-pub fn normalise_image(image: &GreyImage) -> GreyImage {
-    let n = image.data.len().max(1) as f64;
-    let mean = image.data.iter().map(|&v| v as f64).sum::<f64>() / n;
-    let var = image
-        .data
-        .iter()
-        .map(|&v| (v as f64 - mean).powi(2))
-        .sum::<f64>()
-        / n;
-    let scale = if var > 0.0 { 1.0 / var.sqrt() } else { 0.0 };
-    GreyImage {
-        channels: 1,
-        width: image.width,
-        height: image.height,
-        data: image
-            .data
-            .iter()
-            .map(|&v| ((v as f64 - mean) * scale) as f32)
-            .collect(),
-    }
-}
-
-/// Output pixels per gemm block (a few hundred KB of im2col columns).
-const BLOCK_PIXELS: usize = 1024;
-
-/// Input channels from which a layer goes through Winograd's transform instead of im2col
-/// (below it, the transforms cost more than they save: the first layer sees one channel).
-const WINOGRAD_MIN_INPUTS: usize = 8;
-
-/// One "same" 3×3 convolution (zero padding) plus bias, optionally rectified.
-fn convolve(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
-    if layer.inputs >= WINOGRAD_MIN_INPUTS {
-        winograd_convolve(input, layer, relu)
-    } else {
-        convolve_direct(input, layer, relu)
-    }
-}
-
-/// [`convolve`] as im2col and one `gemm` per block of pixels.
-pub(crate) fn convolve_direct(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
-    let (w, h, cin, cout) = (input.width, input.height, layer.inputs, layer.outputs);
-    let k = KERNEL * KERNEL * cin;
-    let rows_per_block = (BLOCK_PIXELS / w.max(1)).max(1);
-    let mut data = vec![0f32; w * h * cout];
-    data.par_chunks_mut(rows_per_block * w * cout)
-        .enumerate()
-        .for_each_init(Vec::new, |columns: &mut Vec<f32>, (block, out)| {
-            let y0 = block * rows_per_block;
-            let pixels = out.len() / cout;
-            columns.resize(pixels * k, 0.0);
-            for (p, column) in columns.chunks_exact_mut(k).enumerate() {
-                let (x, y) = (p % w, y0 + p / w);
-                for ky in 0..KERNEL {
-                    for kx in 0..KERNEL {
-                        let slot = &mut column[(ky * KERNEL + kx) * cin..][..cin];
-                        let (yy, xx) = ((y + ky) as isize - 1, (x + kx) as isize - 1);
-                        if yy < 0 || xx < 0 || yy >= h as isize || xx >= w as isize {
-                            slot.fill(0.0);
-                        } else {
-                            slot.copy_from_slice(input.pixel(xx as usize, yy as usize));
-                        }
-                    }
-                }
-            }
-            matmul(out, columns, &layer.weight, pixels, cout, k);
-            for pixel in out.chunks_exact_mut(cout) {
-                for (v, b) in pixel.iter_mut().zip(&layer.bias) {
-                    *v += b;
-                    if relu {
-                        *v = v.max(0.0);
-                    }
-                }
-            }
-        });
-    FeatureMap {
-        width: w,
-        height: h,
-        channels: cout,
-        data,
-    }
-}
-
-/// The tower's features of an image (normalised here first). Fast networks: ReLU between
-/// layers, none after the last, then L2 normalisation; accurate networks: ReLU after
-/// every layer, no normalisation (the fully connected layers follow).
-pub fn tower_features(network: &MatchingNetwork, image: &GreyImage) -> FeatureMap {
-    let normalised = normalise_image(image);
-    let mut features = FeatureMap {
-        width: image.width,
-        height: image.height,
-        channels: 1,
-        data: normalised.data,
-    };
-    let layers = network.conv.len();
-    for (i, layer) in network.conv.iter().enumerate() {
-        let relu = i + 1 < layers || network.is_accurate();
-        features = convolve(&features, layer, relu);
-    }
-    if !network.is_accurate() {
-        features
-            .data
-            .par_chunks_mut(features.channels)
-            .for_each(|f| {
-                let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
-                if norm > 0.0 {
-                    f.iter_mut().for_each(|v| *v /= norm);
-                }
-            });
-    }
-    features
 }
 
 /// The learned cost volume of a rectified pair (left is the reference), in [0, 1]:

@@ -18,6 +18,7 @@ mod mutual_information;
 mod network;
 mod refine;
 mod sgm;
+mod tower;
 mod winograd;
 mod zncc;
 
@@ -29,7 +30,7 @@ pub use disparity_filters::{
     bilateral_filter, classify, fill_inconsistent, median_filter, right_disparity, Bilateral,
     Consistency,
 };
-pub use learned::{cosine_costs, learned_cost_volume, normalise_image, tower_features, FeatureMap};
+pub use learned::{cosine_costs, learned_cost_volume};
 pub use matcher::{
     match_pair, match_vertical, transpose, unit_range, LeftRight, MatchOutput, MatchSettings,
     MatchingCost,
@@ -40,4 +41,5 @@ pub use refine::{
     left_right_check, subpixel_disparity, windowed_subpixel, winner_take_all, LEFT_RIGHT_TOLERANCE,
 };
 pub use sgm::{semi_global_matching, SgmParameters};
+pub use tower::{normalise_image, tower_features, FeatureMap};
 pub use zncc::zncc_cost_volume;

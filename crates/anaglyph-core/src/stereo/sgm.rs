@@ -124,48 +124,134 @@ fn divisors(params: &SgmParameters) -> [f32; 3] {
     [1.0, params.q1, params.q2]
 }
 
-/// One path step at pixel p: `current[d] = C(p,d) + min(...) − min_k previous[k]`, with the
-/// penalties chosen per disparity from the left edge flag and the right one at p − d
-/// (`d = min_disp + index`).
-#[allow(clippy::too_many_arguments)]
-#[inline]
-fn step(
-    costs: &[f32],
-    previous: &[f32],
-    current: &mut [f32],
-    left_edge: bool,
-    right_edges: &[bool],
-    (x, px): (usize, usize),
-    min_disp: i64,
-    p1: f32,
-    p2: f32,
-    divisor: &[f32; 3],
-) {
-    let dmax = costs.len();
-    let w = right_edges.len() as i64;
-    let min_prev = previous.iter().cloned().fold(f32::INFINITY, f32::min);
-    for d in 0..dmax {
-        // The right gradient exists only where both right pixels are inside the image.
-        let (xr, pxr) = (
-            x as i64 - min_disp - d as i64,
-            px as i64 - min_disp - d as i64,
-        );
-        let right_edge = xr >= 0 && xr < w && pxr >= 0 && pxr < w && right_edges[xr as usize];
-        let k = usize::from(left_edge) + usize::from(right_edge);
-        let (p1, p2) = (p1 / divisor[k], p2 / divisor[k]);
-        let mut best = previous[d].min(min_prev + p2);
-        if d > 0 {
-            best = best.min(previous[d - 1] + p1);
+/// The penalties of every step into one row along one direction, per disparity, laid out
+/// so that one pixel's are contiguous: for pixel x, disparity index d reads entry
+/// `w − 1 − x + d`, whose right pixel is `x − min − d`. One table per left edge flag.
+struct RowPenalties {
+    p1: [Vec<f32>; 2],
+    p2: [Vec<f32>; 2],
+    width: usize,
+    count: usize,
+}
+
+impl RowPenalties {
+    fn new(width: usize, count: usize) -> Self {
+        let len = width + count - 1;
+        RowPenalties {
+            p1: [vec![0.0; len], vec![0.0; len]],
+            p2: [vec![0.0; len], vec![0.0; len]],
+            width,
+            count,
         }
-        if d + 1 < dmax {
-            best = best.min(previous[d + 1] + p1);
+    }
+
+    /// The tables for one row, from its right edge flags. The right gradient exists only
+    /// where the right pixel is inside the image (the flags are false where its
+    /// predecessor along the path is not).
+    fn fill(&mut self, right_edges: &[bool], min_disp: i64, (p1, p2): (f32, f32), d: &[f32; 3]) {
+        let w = self.width as i64;
+        for j in 0..self.p1[0].len() {
+            let xr = w - 1 - min_disp - j as i64;
+            let right = usize::from((0..w).contains(&xr) && right_edges[xr as usize]);
+            for left in 0..2 {
+                self.p1[left][j] = p1 / d[left + right];
+                self.p2[left][j] = p2 / d[left + right];
+            }
         }
-        current[d] = costs[d] + best - min_prev;
+    }
+
+    /// (P1, P2) per disparity of the step into pixel x.
+    #[inline(always)]
+    fn at(&self, x: usize, left_edge: bool) -> (&[f32], &[f32]) {
+        let (first, table) = (self.width - 1 - x, usize::from(left_edge));
+        (
+            &self.p1[table][first..][..self.count],
+            &self.p2[table][first..][..self.count],
+        )
     }
 }
 
-/// Sums the path costs of `directions` (mean over paths). Memory: the output plus two
-/// rows of path costs per direction; nothing is allocated per pixel.
+/// One pixel's path costs, `count + 2` values with +∞ at both ends (so that the
+/// neighbouring disparities of the first and last need no test), and their minimum.
+#[derive(Clone)]
+struct PathCosts {
+    values: Vec<f32>,
+    min: f32,
+}
+
+impl PathCosts {
+    fn new(count: usize) -> Self {
+        let mut values = vec![f32::INFINITY; count + 2];
+        values[1..=count].fill(0.0);
+        PathCosts { values, min: 0.0 }
+    }
+
+    /// A path's first pixel: its own costs, added to `sum`.
+    #[inline(always)]
+    fn start(&mut self, costs: &[f32], sum: &mut [f32]) {
+        let n = costs.len();
+        self.values[1..=n].copy_from_slice(costs);
+        for (s, c) in sum.iter_mut().zip(costs) {
+            *s += c;
+        }
+        self.min = minimum(costs);
+    }
+
+    /// One path step into a pixel with costs `costs` from `previous`:
+    /// `L(d) = C(d) + min(L'(d), L'(d ± 1) + P1(d), min L' + P2(d)) − min L'`, added to
+    /// `sum`. (`min(a, b) + P1` is `min(a + P1, b + P1)` exactly: rounding is monotone.)
+    #[inline(always)]
+    fn step(
+        &mut self,
+        previous: &PathCosts,
+        costs: &[f32],
+        (p1, p2): (&[f32], &[f32]),
+        sum: &mut [f32],
+    ) {
+        let n = costs.len();
+        let (prev, min_prev) = (&previous.values[..n + 2], previous.min);
+        let current = &mut self.values[1..=n];
+        let (p1, p2, sum) = (&p1[..n], &p2[..n], &mut sum[..n]);
+        for d in 0..n {
+            let neighbour = prev[d].min(prev[d + 2]) + p1[d];
+            let best = prev[d + 1].min(neighbour).min(min_prev + p2[d]);
+            let value = costs[d] + best - min_prev;
+            current[d] = value;
+            sum[d] += value;
+        }
+        self.min = minimum(current);
+    }
+}
+
+/// The least of a slice (+∞ when empty), over eight independent lanes so that it
+/// vectorises.
+#[inline(always)]
+fn minimum(values: &[f32]) -> f32 {
+    let mut lanes = [f32::INFINITY; 8];
+    let chunks = values.chunks_exact(8);
+    let tail = chunks
+        .remainder()
+        .iter()
+        .fold(f32::INFINITY, |m, &v| m.min(v));
+    for chunk in chunks {
+        for (lane, &v) in lanes.iter_mut().zip(chunk) {
+            *lane = lane.min(v);
+        }
+    }
+    lanes.iter().fold(tail, |m, &v| m.min(v))
+}
+
+/// (P1, P2) of one path direction before the gradient divisors: P1 divided by V on
+/// vertical paths.
+fn direction_penalties(params: &SgmParameters, dx: i64) -> (f32, f32) {
+    let vertical = dx == 0;
+    (params.p1 / if vertical { params.v } else { 1.0 }, params.p2)
+}
+
+/// Sums the path costs of `directions` (mean over paths). Memory: the output plus a row
+/// of path costs per direction; nothing is allocated per pixel. The horizontal paths run
+/// together, row by row; the others row after row along the path, each row's pixels in
+/// parallel.
 pub(crate) fn aggregate(
     volume: &CostVolume,
     left: &GreyImage,
@@ -174,102 +260,17 @@ pub(crate) fn aggregate(
     directions: &[(i64, i64)],
 ) -> CostVolume {
     let (w, h, dm) = (volume.width, volume.height, volume.count());
-    let min_disp = volume.range.min as i64;
     let mut sum = crate::io::zeroed_large(w * h * dm);
-    let divisor = divisors(params);
-    for &(dx, dy) in directions {
-        let vertical = dx == 0;
-        let p1 = params.p1 / if vertical { params.v } else { 1.0 };
-        let p2 = params.p2;
-        let left_edges = edge_flags(left, dx, dy, params.gradient_threshold);
-        let right_edges = edge_flags(right, dx, dy, params.gradient_threshold);
-        if dy == 0 {
-            // Rows are independent: one pass per row, in parallel.
-            sum.par_chunks_mut(w * dm).enumerate().for_each_init(
-                || (vec![0f32; dm], vec![0f32; dm]),
-                |(previous, current), (y, row)| {
-                    let xs: Box<dyn Iterator<Item = usize>> = if dx > 0 {
-                        Box::new(0..w)
-                    } else {
-                        Box::new((0..w).rev())
-                    };
-                    let right_row = &right_edges[y * w..(y + 1) * w];
-                    for (i, x) in xs.enumerate() {
-                        let costs = volume.pixel(x, y);
-                        if i == 0 {
-                            current.copy_from_slice(costs);
-                        } else {
-                            let px = (x as i64 - dx) as usize;
-                            step(
-                                costs,
-                                previous,
-                                current,
-                                left_edges[y * w + x],
-                                right_row,
-                                (x, px),
-                                min_disp,
-                                p1,
-                                p2,
-                                &divisor,
-                            );
-                        }
-                        for (s, c) in row[x * dm..(x + 1) * dm].iter_mut().zip(current.iter()) {
-                            *s += c;
-                        }
-                        std::mem::swap(previous, current);
-                    }
-                },
-            );
-        } else {
-            // Each row depends on the previous one along the path: rows in order, the
-            // pixels of a row in parallel.
-            let mut previous_row = vec![0f32; w * dm];
-            let mut current_row = vec![0f32; w * dm];
-            let ys: Vec<usize> = if dy > 0 {
-                (0..h).collect()
-            } else {
-                (0..h).rev().collect()
-            };
-            for (i, &y) in ys.iter().enumerate() {
-                let right_row = &right_edges[y * w..(y + 1) * w];
-                current_row
-                    .par_chunks_mut(dm * 32)
-                    .zip(sum[y * w * dm..(y + 1) * w * dm].par_chunks_mut(dm * 32))
-                    .enumerate()
-                    .for_each(|(block, (current_block, sum_block))| {
-                        for (j, (current, s)) in current_block
-                            .chunks_exact_mut(dm)
-                            .zip(sum_block.chunks_exact_mut(dm))
-                            .enumerate()
-                        {
-                            let x = block * 32 + j;
-                            let costs = volume.pixel(x, y);
-                            let px = x as i64 - dx;
-                            if i == 0 || px < 0 || px >= w as i64 {
-                                current.copy_from_slice(costs);
-                            } else {
-                                let px = px as usize;
-                                step(
-                                    costs,
-                                    &previous_row[px * dm..(px + 1) * dm],
-                                    current,
-                                    left_edges[y * w + x],
-                                    right_row,
-                                    (x, px),
-                                    min_disp,
-                                    p1,
-                                    p2,
-                                    &divisor,
-                                );
-                            }
-                            for (a, c) in s.iter_mut().zip(current.iter()) {
-                                *a += c;
-                            }
-                        }
-                    });
-                std::mem::swap(&mut previous_row, &mut current_row);
-            }
-        }
+    let horizontal: Vec<i64> = directions
+        .iter()
+        .filter(|d| d.1 == 0)
+        .map(|d| d.0)
+        .collect();
+    if !horizontal.is_empty() {
+        aggregate_along_rows(volume, left, right, params, &horizontal, &mut sum);
+    }
+    for &direction in directions.iter().filter(|d| d.1 != 0) {
+        aggregate_across_rows(volume, left, right, params, direction, &mut sum);
     }
     let n = directions.len() as f32;
     sum.par_iter_mut().for_each(|s| *s /= n);
@@ -278,6 +279,102 @@ pub(crate) fn aggregate(
         height: h,
         range: volume.range,
         data: sum,
+    }
+}
+
+/// The horizontal paths (`dxs`, each ±1), added to `sum`: rows are independent, so one
+/// task per row runs every direction over it while the row is in cache.
+fn aggregate_along_rows(
+    volume: &CostVolume,
+    left: &GreyImage,
+    right: &GreyImage,
+    params: &SgmParameters,
+    dxs: &[i64],
+    sum: &mut [f32],
+) {
+    let (w, dm) = (volume.width, volume.count());
+    let min_disp = volume.range.min as i64;
+    let divisor = divisors(params);
+    let threshold = params.gradient_threshold;
+    let edges: Vec<(i64, Vec<bool>, Vec<bool>)> = dxs
+        .iter()
+        .map(|&dx| {
+            let flags = |image| edge_flags(image, dx, 0, threshold);
+            (dx, flags(left), flags(right))
+        })
+        .collect();
+    sum.par_chunks_mut(w * dm).enumerate().for_each_init(
+        || {
+            let path = PathCosts::new(dm);
+            (RowPenalties::new(w, dm), path.clone(), path)
+        },
+        |(penalties, previous, current), (y, row)| {
+            for (dx, left_edges, right_edges) in &edges {
+                let row_edges = &right_edges[y * w..(y + 1) * w];
+                let base = direction_penalties(params, *dx);
+                penalties.fill(row_edges, min_disp, base, &divisor);
+                for i in 0..w {
+                    let x = if *dx > 0 { i } else { w - 1 - i };
+                    let (costs, out) = (volume.pixel(x, y), &mut row[x * dm..(x + 1) * dm]);
+                    if i == 0 {
+                        current.start(costs, out);
+                    } else {
+                        let step = penalties.at(x, left_edges[y * w + x]);
+                        current.step(previous, costs, step, out);
+                    }
+                    std::mem::swap(previous, current);
+                }
+            }
+        },
+    );
+}
+
+/// One path direction with `dy ≠ 0`, added to `sum`: each row depends on the previous
+/// one along the path, so rows go in order and the pixels of a row in parallel.
+fn aggregate_across_rows(
+    volume: &CostVolume,
+    left: &GreyImage,
+    right: &GreyImage,
+    params: &SgmParameters,
+    (dx, dy): (i64, i64),
+    sum: &mut [f32],
+) {
+    const PIXELS_PER_TASK: usize = 32;
+    let (w, h, dm) = (volume.width, volume.height, volume.count());
+    let min_disp = volume.range.min as i64;
+    let divisor = divisors(params);
+    let left_edges = edge_flags(left, dx, dy, params.gradient_threshold);
+    let right_edges = edge_flags(right, dx, dy, params.gradient_threshold);
+    let mut penalties = RowPenalties::new(w, dm);
+    let mut previous_row = vec![PathCosts::new(dm); w];
+    let mut current_row = previous_row.clone();
+    for i in 0..h {
+        let y = if dy > 0 { i } else { h - 1 - i };
+        let row_edges = &right_edges[y * w..(y + 1) * w];
+        let base = direction_penalties(params, dx);
+        penalties.fill(row_edges, min_disp, base, &divisor);
+        current_row
+            .par_chunks_mut(PIXELS_PER_TASK)
+            .zip(sum[y * w * dm..(y + 1) * w * dm].par_chunks_mut(dm * PIXELS_PER_TASK))
+            .enumerate()
+            .for_each(|(block, (current_block, sum_block))| {
+                for (j, (current, out)) in current_block
+                    .iter_mut()
+                    .zip(sum_block.chunks_exact_mut(dm))
+                    .enumerate()
+                {
+                    let x = block * PIXELS_PER_TASK + j;
+                    let costs = volume.pixel(x, y);
+                    let px = x as i64 - dx;
+                    if i == 0 || px < 0 || px >= w as i64 {
+                        current.start(costs, out);
+                    } else {
+                        let step = penalties.at(x, left_edges[y * w + x]);
+                        current.step(&previous_row[px as usize], costs, step, out);
+                    }
+                }
+            });
+        std::mem::swap(&mut previous_row, &mut current_row);
     }
 }
 
@@ -296,6 +393,50 @@ mod tests {
     fn each_path_matches_a_plain_dynamic_programme() {
         for range in [DisparityRange::new(0, 5), DisparityRange::new(-3, 2)] {
             each_path_matches_a_plain_dynamic_programme_over(range.unwrap());
+        }
+    }
+
+    #[test]
+    fn several_paths_give_the_mean_of_each_path() {
+        // The horizontal paths run together over each row; the result must still be
+        // the mean of the paths run one by one.
+        let (w, h) = (11, 6);
+        let range = DisparityRange::new(-2, 5).unwrap();
+        let mut seed = 7;
+        let mut random = |n: usize| -> Vec<f32> { (0..n).map(|_| uniform(&mut seed)).collect() };
+        let volume = CostVolume {
+            width: w,
+            height: h,
+            range,
+            data: random(w * h * range.count()),
+        };
+        let image = |data| GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data,
+        };
+        let (left, right) = (image(random(w * h)), image(random(w * h)));
+        let params = SgmParameters {
+            gradient_threshold: 0.3,
+            ..SgmParameters::MC_CNN_FAST_KITTI
+        };
+        for directions in [&DIRECTIONS[..4], &DIRECTIONS[..]] {
+            let together = aggregate(&volume, &left, &right, &params, directions);
+            let mut mean = vec![0f32; together.data.len()];
+            for &direction in directions {
+                let single = aggregate(&volume, &left, &right, &params, &[direction]);
+                for (m, v) in mean.iter_mut().zip(&single.data) {
+                    *m += v / directions.len() as f32;
+                }
+            }
+            for (i, (a, b)) in together.data.iter().zip(&mean).enumerate() {
+                assert!(
+                    (a - b).abs() < 1e-4,
+                    "{} paths, entry {i}: {a} vs {b}",
+                    directions.len()
+                );
+            }
         }
     }
 

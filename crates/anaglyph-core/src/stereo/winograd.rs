@@ -4,11 +4,13 @@
 //! transform domain, where the 36 element-wise products over channels become 36 small
 //! matrix products (`gemm`), and each tile comes back as 4×4 outputs: 36 multiplications
 //! per output channel and tile instead of 144, so about a quarter of the direct
-//! convolution's arithmetic. One rayon task per row of tiles; scratch buffers per thread.
+//! convolution's arithmetic. Single-threaded over the rows asked for, with the caller's
+//! scratch buffers: the tower ([`super::tower`]) runs one strip of rows per rayon task.
 
-use super::learned::{matmul, FeatureMap};
+use super::learned::matmul;
 use super::network::{ConvLayer, KERNEL};
-use rayon::prelude::*;
+use super::tower::FeatureMap;
+use std::ops::Range;
 
 /// Side of an output tile.
 const OUT: usize = 4;
@@ -29,7 +31,7 @@ const G: [[f64; KERNEL]; TILE] = [
 
 /// The layer's kernels in the transform domain, `u[(point·inputs + c)·outputs + o]`
 /// = (G g Gᵀ)[point] of the kernel from input `c` to output `o` (computed in f64).
-fn transform_kernels(layer: &ConvLayer) -> Vec<f32> {
+pub(crate) fn transform_kernels(layer: &ConvLayer) -> Vec<f32> {
     let (cin, cout) = (layer.inputs, layer.outputs);
     let mut u = vec![0f32; POINTS * cin * cout];
     for c in 0..cin {
@@ -258,131 +260,68 @@ unsafe fn transform_outputs_avx2(
 const RUN_TILES: usize = 32;
 
 /// Per-thread scratch: a run of tiles in the transform domain, input and output side.
-struct Scratch {
+#[derive(Default)]
+pub(crate) struct WinogradScratch {
     transformed: Vec<f32>,
     products: Vec<f32>,
 }
 
-/// One "same" 3×3 convolution (zero padding) plus bias, optionally rectified; the same
-/// result as the direct convolution up to float rounding.
-pub(crate) fn winograd_convolve(input: &FeatureMap, layer: &ConvLayer, relu: bool) -> FeatureMap {
-    let (w, h, cin, cout) = (input.width, input.height, layer.inputs, layer.outputs);
-    let u = transform_kernels(layer);
+/// Output rows `rows` of one "same" 3×3 convolution of `input` (rows outside it read as
+/// zeros) plus bias, optionally rectified, into `out` (`rows.len() × width × outputs`);
+/// `kernels` from [`transform_kernels`]. The same result as the direct convolution up to
+/// float rounding. Single-threaded: callers parallelise.
+pub(crate) fn winograd_convolve_rows(
+    input: &FeatureMap,
+    (layer, kernels, relu): (&ConvLayer, &[f32], bool),
+    rows: Range<usize>,
+    out: &mut [f32],
+    s: &mut WinogradScratch,
+) {
+    let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
     let tiles_x = w.div_ceil(OUT);
     #[cfg(target_arch = "x86_64")]
     let avx2 = crate::cpu::has_avx2_fma();
-    let mut data = vec![0f32; w * h * cout];
-    let scratch = || Scratch {
-        transformed: vec![0f32; POINTS * RUN_TILES * cin],
-        products: vec![0f32; POINTS * RUN_TILES * cout],
-    };
-    data.par_chunks_mut(OUT * w * cout)
-        .enumerate()
-        .for_each_init(scratch, |s, (tile_row, out)| {
-            let rows = out.len() / (w * cout);
-            for first in (0..tiles_x).step_by(RUN_TILES) {
-                let run = TileRun {
-                    x0: first * OUT,
-                    y0: tile_row * OUT,
-                    tiles: RUN_TILES.min(tiles_x - first),
-                };
-                let t = run.tiles;
-                #[cfg(target_arch = "x86_64")]
-                if avx2 {
-                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                    unsafe { transform_inputs_avx2(input, run, &mut s.transformed) };
-                } else {
-                    transform_inputs(input, run, &mut s.transformed);
-                }
-                #[cfg(not(target_arch = "x86_64"))]
+    s.transformed.resize(POINTS * RUN_TILES * cin, 0.0);
+    s.products.resize(POINTS * RUN_TILES * cout, 0.0);
+    let out = &mut out[..rows.len() * w * cout];
+    for (tile_row, out) in out.chunks_mut(OUT * w * cout).enumerate() {
+        let tile_rows = out.len() / (w * cout);
+        for first in (0..tiles_x).step_by(RUN_TILES) {
+            let run = TileRun {
+                x0: first * OUT,
+                y0: rows.start + tile_row * OUT,
+                tiles: RUN_TILES.min(tiles_x - first),
+            };
+            let t = run.tiles;
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                unsafe { transform_inputs_avx2(input, run, &mut s.transformed) };
+            } else {
                 transform_inputs(input, run, &mut s.transformed);
-                for point in 0..POINTS {
-                    matmul(
-                        &mut s.products[point * t * cout..][..t * cout],
-                        &s.transformed[point * t * cin..][..t * cin],
-                        &u[point * cin * cout..][..cin * cout],
-                        t,
-                        cout,
-                        cin,
-                    );
-                }
-                let placement = (run, w, rows);
-                #[cfg(target_arch = "x86_64")]
-                if avx2 {
-                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                    unsafe { transform_outputs_avx2(&s.products, layer, relu, placement, out) };
-                } else {
-                    transform_outputs(&s.products, layer, relu, placement, out);
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                transform_outputs(&s.products, layer, relu, placement, out);
             }
-        });
-    FeatureMap {
-        width: w,
-        height: h,
-        channels: cout,
-        data,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::stereo::learned::convolve_direct;
-
-    /// Deterministic values in [-1, 1).
-    fn noise(n: usize, seed: u64) -> Vec<f32> {
-        let mut state = seed;
-        (0..n)
-            .map(|_| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-            })
-            .collect()
-    }
-
-    #[test]
-    fn winograd_matches_the_direct_convolution_on_ragged_sizes() {
-        for (w, h, cin, cout) in [
-            (37, 23, 16, 24),
-            (150, 9, 16, 8),
-            (4, 4, 8, 8),
-            (5, 1, 9, 3),
-            (1, 6, 12, 5),
-        ] {
-            let input = FeatureMap {
-                width: w,
-                height: h,
-                channels: cin,
-                data: noise(w * h * cin, 1),
-            };
-            let layer = ConvLayer {
-                inputs: cin,
-                outputs: cout,
-                weight: noise(KERNEL * KERNEL * cin * cout, 2)
-                    .iter()
-                    .map(|v| v * 0.3)
-                    .collect(),
-                bias: noise(cout, 3),
-            };
-            for relu in [false, true] {
-                let direct = convolve_direct(&input, &layer, relu);
-                let fast = winograd_convolve(&input, &layer, relu);
-                assert_eq!((fast.width, fast.height, fast.channels), (w, h, cout));
-                let scale = direct.data.iter().fold(0f32, |m, v| m.max(v.abs()));
-                let worst = direct
-                    .data
-                    .iter()
-                    .zip(&fast.data)
-                    .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
-                assert!(
-                    worst <= 1e-5 * scale.max(1.0),
-                    "{w}x{h}, {cin}->{cout}, relu {relu}: worst difference {worst} (scale {scale})"
+            #[cfg(not(target_arch = "x86_64"))]
+            transform_inputs(input, run, &mut s.transformed);
+            for point in 0..POINTS {
+                matmul(
+                    &mut s.products[point * t * cout..][..t * cout],
+                    &s.transformed[point * t * cin..][..t * cin],
+                    &kernels[point * cin * cout..][..cin * cout],
+                    t,
+                    cout,
+                    cin,
                 );
             }
+            let placement = (run, w, tile_rows);
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                unsafe { transform_outputs_avx2(&s.products, layer, relu, placement, out) };
+            } else {
+                transform_outputs(&s.products, layer, relu, placement, out);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            transform_outputs(&s.products, layer, relu, placement, out);
         }
     }
 }

@@ -1,0 +1,378 @@
+//! The matching network's convolutional tower over one image, the first half of the
+//! learned cost in the stage `captures -> stereo (cost -> ...)`. In: a grey image and the
+//! network's 3×3 "same" convolutions; out: a [`FeatureMap`] of per-pixel feature vectors
+//! (L2-normalised for fast networks).
+//!
+//! The image goes through the tower in strips of rows, one rayon task per strip: each
+//! layer computes the strip's rows plus as many rows either side as the layers after it
+//! still need (the receptive field), so a strip's features equal the whole image's, and
+//! the layers in between live in two small per-thread buffers instead of whole-image
+//! maps. Layers with many inputs use Winograd's transform ([`super::winograd`]); the first
+//! (one input channel) uses im2col and `gemm`.
+
+use super::learned::matmul;
+use super::network::{ConvLayer, MatchingNetwork, KERNEL};
+use super::winograd::{transform_kernels, winograd_convolve_rows, WinogradScratch};
+use super::GreyImage;
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// Per-pixel feature vectors, `data[(y·width + x)·channels + k]`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FeatureMap {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub data: Vec<f32>,
+}
+
+impl FeatureMap {
+    pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
+        let i = (y * self.width + x) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+}
+
+/// The image shifted to zero mean and scaled to unit standard deviation (MC-CNN's input
+/// normalisation); a constant image becomes all zeros.
+pub fn normalise_image(image: &GreyImage) -> GreyImage {
+    let n = image.data.len().max(1) as f64;
+    let mean = image.data.iter().map(|&v| v as f64).sum::<f64>() / n;
+    let var = image
+        .data
+        .iter()
+        .map(|&v| (v as f64 - mean).powi(2))
+        .sum::<f64>()
+        / n;
+    let scale = if var > 0.0 { 1.0 / var.sqrt() } else { 0.0 };
+    GreyImage {
+        channels: 1,
+        width: image.width,
+        height: image.height,
+        data: image
+            .data
+            .iter()
+            .map(|&v| ((v as f64 - mean) * scale) as f32)
+            .collect(),
+    }
+}
+
+/// Output rows per strip: the rows recomputed either side cost about 2/`STRIP_ROWS` of
+/// the tower (4 layers), and the strip's buffers stay a few MB.
+const STRIP_ROWS: usize = 32;
+
+/// Output pixels per `gemm` block of the im2col convolution (a few hundred KB of columns).
+const BLOCK_PIXELS: usize = 1024;
+
+/// Input channels from which a layer goes through Winograd's transform instead of im2col
+/// (below it, the transforms cost more than they save: the first layer sees one channel).
+const WINOGRAD_MIN_INPUTS: usize = 8;
+
+/// One convolution of the tower, ready to run: its kernels in the transform domain where
+/// it goes through Winograd's, and whether a ReLU follows.
+pub(crate) struct PreparedLayer<'a> {
+    layer: &'a ConvLayer,
+    winograd: Option<Vec<f32>>,
+    relu: bool,
+}
+
+impl<'a> PreparedLayer<'a> {
+    pub(crate) fn new(layer: &'a ConvLayer, relu: bool) -> Self {
+        let winograd = (layer.inputs >= WINOGRAD_MIN_INPUTS).then(|| transform_kernels(layer));
+        PreparedLayer {
+            layer,
+            winograd,
+            relu,
+        }
+    }
+
+    /// Output rows `rows` (in `input`'s rows; rows outside `input` read as zeros) of the
+    /// "same" 3×3 convolution plus bias, optionally rectified, into `out`
+    /// (`rows.len() × width × outputs`). Single-threaded: callers parallelise.
+    pub(crate) fn convolve_rows(
+        &self,
+        input: &FeatureMap,
+        rows: Range<usize>,
+        out: &mut [f32],
+        scratch: &mut ConvScratch,
+    ) {
+        match &self.winograd {
+            Some(kernels) => winograd_convolve_rows(
+                input,
+                (self.layer, kernels, self.relu),
+                rows,
+                out,
+                &mut scratch.winograd,
+            ),
+            None => convolve_direct_rows(
+                input,
+                self.layer,
+                self.relu,
+                rows,
+                out,
+                &mut scratch.columns,
+            ),
+        }
+    }
+}
+
+/// Per-thread buffers of the convolutions.
+#[derive(Default)]
+pub(crate) struct ConvScratch {
+    columns: Vec<f32>,
+    winograd: WinogradScratch,
+}
+
+/// [`PreparedLayer::convolve_rows`] as im2col and one `gemm` per block of pixels.
+pub(crate) fn convolve_direct_rows(
+    input: &FeatureMap,
+    layer: &ConvLayer,
+    relu: bool,
+    rows: Range<usize>,
+    out: &mut [f32],
+    columns: &mut Vec<f32>,
+) {
+    let (w, h, cin, cout) = (input.width, input.height, layer.inputs, layer.outputs);
+    let k = KERNEL * KERNEL * cin;
+    let rows_per_block = (BLOCK_PIXELS / w.max(1)).max(1);
+    for (block, out) in out[..rows.len() * w * cout]
+        .chunks_mut(rows_per_block * w * cout)
+        .enumerate()
+    {
+        let y0 = rows.start + block * rows_per_block;
+        let pixels = out.len() / cout;
+        columns.resize(pixels * k, 0.0);
+        for (p, column) in columns.chunks_exact_mut(k).enumerate() {
+            let (x, y) = (p % w, y0 + p / w);
+            for ky in 0..KERNEL {
+                for kx in 0..KERNEL {
+                    let slot = &mut column[(ky * KERNEL + kx) * cin..][..cin];
+                    let (yy, xx) = ((y + ky).wrapping_sub(1), (x + kx).wrapping_sub(1));
+                    if yy < h && xx < w {
+                        slot.copy_from_slice(input.pixel(xx, yy));
+                    } else {
+                        slot.fill(0.0);
+                    }
+                }
+            }
+        }
+        matmul(out, columns, &layer.weight, pixels, cout, k);
+        for pixel in out.chunks_exact_mut(cout) {
+            for (v, b) in pixel.iter_mut().zip(&layer.bias) {
+                *v += b;
+                if relu {
+                    *v = v.max(0.0);
+                }
+            }
+        }
+    }
+}
+
+/// The tower's features of an image (normalised here first). Fast networks: ReLU between
+/// layers, none after the last, then L2 normalisation; accurate networks: ReLU after
+/// every layer, no normalisation (the fully connected layers follow).
+pub fn tower_features(network: &MatchingNetwork, image: &GreyImage) -> FeatureMap {
+    tower_features_in_strips(network, image, STRIP_ROWS)
+}
+
+/// Per-thread buffers of a strip: the hidden layers' outputs in turn, and the
+/// convolutions'.
+#[derive(Default)]
+struct StripScratch {
+    maps: [FeatureMap; 2],
+    conv: ConvScratch,
+}
+
+/// [`tower_features`] with strips of `strip_rows` output rows.
+fn tower_features_in_strips(
+    network: &MatchingNetwork,
+    image: &GreyImage,
+    strip_rows: usize,
+) -> FeatureMap {
+    let (w, h) = (image.width, image.height);
+    let input = FeatureMap {
+        width: w,
+        height: h,
+        channels: 1,
+        data: normalise_image(image).data,
+    };
+    let depth = network.conv.len();
+    let layers: Vec<PreparedLayer> = (network.conv.iter().enumerate())
+        .map(|(i, layer)| PreparedLayer::new(layer, i + 1 < depth || network.is_accurate()))
+        .collect();
+    let channels = layers.last().map_or(1, |l| l.layer.outputs);
+    let mut data = vec![0f32; w * h * channels];
+    let strip_len = strip_rows.max(1) * w * channels;
+    data.par_chunks_mut(strip_len.max(1))
+        .enumerate()
+        .for_each_init(StripScratch::default, |scratch, (strip, out)| {
+            let first = strip * strip_rows;
+            let rows = first..first + out.len() / (w * channels);
+            strip_features(&input, &layers, rows, out, scratch);
+            if !network.is_accurate() {
+                out.chunks_exact_mut(channels).for_each(normalise_l2);
+            }
+        });
+    FeatureMap {
+        width: w,
+        height: h,
+        channels,
+        data,
+    }
+}
+
+/// The last layer's output on image rows `rows` into `out`: each layer computes the rows
+/// the next ones need (`rows` widened by one row per layer after it, within the image),
+/// from the previous layer's rows, which always include one more row either side or
+/// the image's border (zero padding).
+fn strip_features(
+    image: &FeatureMap,
+    layers: &[PreparedLayer],
+    rows: Range<usize>,
+    out: &mut [f32],
+    scratch: &mut StripScratch,
+) {
+    let (w, h) = (image.width, image.height);
+    if layers.is_empty() {
+        out.copy_from_slice(&image.data[rows.start * w..rows.end * w]);
+        return;
+    }
+    let needed = |after: usize| rows.start.saturating_sub(after)..(rows.end + after).min(h);
+    // The image row of the current input's first row.
+    let mut input_first = 0;
+    for (i, layer) in layers.iter().enumerate() {
+        let wanted = needed(layers.len() - 1 - i);
+        let local = wanted.start - input_first..wanted.end - input_first;
+        let [even, odd] = &mut scratch.maps;
+        let (previous, next) = if i % 2 == 0 {
+            (&*odd, even)
+        } else {
+            (&*even, odd)
+        };
+        let input = if i == 0 { image } else { previous };
+        if i + 1 == layers.len() {
+            layer.convolve_rows(input, local, out, &mut scratch.conv);
+        } else {
+            let channels = layer.layer.outputs;
+            next.data.resize(wanted.len() * w * channels, 0.0);
+            layer.convolve_rows(input, local, &mut next.data, &mut scratch.conv);
+            (next.width, next.height, next.channels) = (w, wanted.len(), channels);
+            input_first = wanted.start;
+        }
+    }
+}
+
+/// Scales a feature vector to unit length (a zero vector stays zero).
+fn normalise_l2(features: &mut [f32]) {
+    let norm = features.iter().map(|v| v * v).sum::<f32>().sqrt();
+    if norm > 0.0 {
+        features.iter_mut().for_each(|v| *v /= norm);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stereo::winograd::transform_kernels;
+
+    /// Deterministic values in [-1, 1).
+    fn noise(n: usize, seed: u64) -> Vec<f32> {
+        let mut state = seed;
+        (0..n)
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// The largest difference between two equally long slices, and the largest magnitude
+    /// of the first.
+    fn worst_difference(want: &[f32], got: &[f32]) -> (f32, f32) {
+        assert_eq!(want.len(), got.len());
+        let scale = want.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = (want.iter().zip(got)).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        (worst, scale)
+    }
+
+    #[test]
+    fn winograd_rows_match_the_direct_convolution_on_ragged_sizes() {
+        for (w, h, cin, cout) in [
+            (37, 23, 16, 24),
+            (150, 9, 16, 8),
+            (4, 4, 8, 8),
+            (5, 1, 9, 3),
+            (1, 6, 12, 5),
+        ] {
+            let input = FeatureMap {
+                width: w,
+                height: h,
+                channels: cin,
+                data: noise(w * h * cin, 1),
+            };
+            let layer = ConvLayer {
+                inputs: cin,
+                outputs: cout,
+                weight: (noise(KERNEL * KERNEL * cin * cout, 2).iter())
+                    .map(|v| v * 0.3)
+                    .collect(),
+                bias: noise(cout, 3),
+            };
+            let kernels = transform_kernels(&layer);
+            // Every row, and rows inside the map whose neighbours above and below exist.
+            for rows in [0..h, 1.min(h)..h.saturating_sub(2).max(1.min(h))] {
+                for relu in [false, true] {
+                    let len = rows.len() * w * cout;
+                    let (mut direct, mut fast) = (vec![0f32; len], vec![0f32; len]);
+                    let mut columns = Vec::new();
+                    convolve_direct_rows(
+                        &input,
+                        &layer,
+                        relu,
+                        rows.clone(),
+                        &mut direct,
+                        &mut columns,
+                    );
+                    let mut scratch = WinogradScratch::default();
+                    let placement = (&layer, kernels.as_slice(), relu);
+                    winograd_convolve_rows(
+                        &input,
+                        placement,
+                        rows.clone(),
+                        &mut fast,
+                        &mut scratch,
+                    );
+                    let (worst, scale) = worst_difference(&direct, &fast);
+                    assert!(
+                        worst <= 1e-5 * scale.max(1.0),
+                        "{w}x{h} rows {rows:?}, {cin}->{cout}, relu {relu}: worst {worst} (scale {scale})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn strips_give_the_features_of_the_whole_image() {
+        let network = MatchingNetwork::default_fast().expect("built-in network");
+        let (w, h) = (37, 29);
+        let image = GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: noise(w * h, 4),
+        };
+        let whole = tower_features_in_strips(&network, &image, h);
+        for strip_rows in [1, 5, 8] {
+            let strips = tower_features_in_strips(&network, &image, strip_rows);
+            assert_eq!((strips.width, strips.height, strips.channels), (w, h, 64));
+            let (worst, _) = worst_difference(&whole.data, &strips.data);
+            assert!(worst <= 1e-5, "strips of {strip_rows} rows: worst {worst}");
+        }
+        // Unit feature vectors (the fast network's L2 normalisation).
+        let norm = |f: &[f32]| f.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!((norm(whole.pixel(3, 7)) - 1.0).abs() < 1e-5);
+    }
+}
