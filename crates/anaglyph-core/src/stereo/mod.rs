@@ -1,8 +1,8 @@
 //! Heterogeneous stereo matching (paper section 2.2), the stage
 //! `captures -> stereo (cost -> aggregate -> sgm -> refine)`. In: a rectified pair, left as
-//! reference; out: a disparity map with the Middlebury sign (`x_right = x_left − d`,
-//! search range `[0, max_disp)`, NaN where invalid). Costs: the learned cross-spectral
-//! MC-CNN (weights from `anaglyph-cnn`, inference here in plain Rust), census, ZNCC and
+//! reference; out: a disparity map with the Middlebury sign (`x_right = x_left − d`, over
+//! a signed [`DisparityRange`], NaN where invalid). Costs: the learned cross-spectral
+//! MC-CNN (weights from `anaglyph-cnn`, its tower in plain Rust), census, ZNCC and
 //! mutual information, in a common [`CostVolume`]; then cross-based aggregation,
 //! semi-global matching, winner-take-all, left–right check with filling, subpixel,
 //! median and bilateral filtering, chained by [`match_pair`].

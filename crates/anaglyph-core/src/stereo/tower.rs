@@ -273,7 +273,7 @@ fn normalise_l2(features: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stereo::winograd::transform_kernels;
+    use crate::stereo::winograd::{portable_convolve_rows, transform_kernels};
 
     /// Deterministic values in [-1, 1).
     fn noise(n: usize, seed: u64) -> Vec<f32> {
@@ -335,20 +335,27 @@ mod tests {
                         &mut direct,
                         &mut columns,
                     );
-                    let mut scratch = WinogradScratch::default();
+                    // The dispatching entry (AVX2 where the CPU has it) and the portable
+                    // twin both agree with the direct convolution.
                     let placement = (&layer, kernels.as_slice(), relu);
-                    winograd_convolve_rows(
-                        &input,
-                        placement,
-                        rows.clone(),
-                        &mut fast,
-                        &mut scratch,
+                    type Convolution = fn(
+                        &FeatureMap,
+                        (&ConvLayer, &[f32], bool),
+                        Range<usize>,
+                        &mut [f32],
+                        &mut WinogradScratch,
                     );
-                    let (worst, scale) = worst_difference(&direct, &fast);
-                    assert!(
-                        worst <= 1e-5 * scale.max(1.0),
-                        "{w}x{h} rows {rows:?}, {cin}->{cout}, relu {relu}: worst {worst} (scale {scale})"
-                    );
+                    let fast_and_portable: [Convolution; 2] =
+                        [winograd_convolve_rows, portable_convolve_rows];
+                    for convolve in fast_and_portable {
+                        let mut scratch = WinogradScratch::default();
+                        convolve(&input, placement, rows.clone(), &mut fast, &mut scratch);
+                        let (worst, scale) = worst_difference(&direct, &fast);
+                        assert!(
+                            worst <= 1e-5 * scale.max(1.0),
+                            "{w}x{h} rows {rows:?}, {cin}->{cout}, relu {relu}: worst {worst} (scale {scale})"
+                        );
+                    }
                 }
             }
         }

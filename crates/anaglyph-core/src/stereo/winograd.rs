@@ -54,78 +54,49 @@ pub(crate) fn transform_kernels(layer: &ConvLayer) -> Vec<f32> {
     u
 }
 
-/// Channels transformed together (one AVX register of f32).
-const LANES: usize = 8;
-
-/// A group of channels' values at one position of a tile.
-type Lanes = [f32; LANES];
-
-/// Bᵀ of F(4, 3) (interpolation points 0, ±1, ±2, ∞) applied lane-wise to the six lane
-/// vectors `d[at(0)], …, d[at(5)]`.
+/// Bᵀ of F(4, 3) (interpolation points 0, ±1, ±2, ∞) on six values.
 #[inline(always)]
-fn input_transform(d: &[Lanes], at: impl Fn(usize) -> usize) -> [Lanes; TILE] {
-    let mut r = [[0f32; LANES]; TILE];
-    let (v0, v1, v2, v3, v4, v5) = (
-        &d[at(0)],
-        &d[at(1)],
-        &d[at(2)],
-        &d[at(3)],
-        &d[at(4)],
-        &d[at(5)],
-    );
-    for l in 0..LANES {
-        let [d0, d1, d2, d3, d4, d5] = [v0[l], v1[l], v2[l], v3[l], v4[l], v5[l]];
-        r[0][l] = 4.0 * d0 - 5.0 * d2 + d4;
-        r[1][l] = -4.0 * (d1 + d2) + d3 + d4;
-        r[2][l] = 4.0 * (d1 - d2) - d3 + d4;
-        r[3][l] = 2.0 * (d3 - d1) - d2 + d4;
-        r[4][l] = 2.0 * (d1 - d3) - d2 + d4;
-        r[5][l] = 4.0 * d1 - 5.0 * d3 + d5;
-    }
-    r
+fn input_transform([d0, d1, d2, d3, d4, d5]: [f32; TILE]) -> [f32; TILE] {
+    [
+        4.0 * d0 - 5.0 * d2 + d4,
+        -4.0 * (d1 + d2) + d3 + d4,
+        4.0 * (d1 - d2) - d3 + d4,
+        2.0 * (d3 - d1) - d2 + d4,
+        2.0 * (d1 - d3) - d2 + d4,
+        4.0 * d1 - 5.0 * d3 + d5,
+    ]
 }
 
-/// Aᵀ of F(4, 3) applied lane-wise to the six lane vectors `m[at(0)], …, m[at(5)]`.
+/// Aᵀ of F(4, 3) on six values.
 #[inline(always)]
-fn output_transform(m: &[Lanes], at: impl Fn(usize) -> usize) -> [Lanes; OUT] {
-    let mut r = [[0f32; LANES]; OUT];
-    let (v0, v1, v2, v3, v4, v5) = (
-        &m[at(0)],
-        &m[at(1)],
-        &m[at(2)],
-        &m[at(3)],
-        &m[at(4)],
-        &m[at(5)],
-    );
-    for l in 0..LANES {
-        let (sum12, diff12) = (v1[l] + v2[l], v1[l] - v2[l]);
-        let (sum34, diff34) = (v3[l] + v4[l], v3[l] - v4[l]);
-        r[0][l] = v0[l] + sum12 + sum34;
-        r[1][l] = diff12 + 2.0 * diff34;
-        r[2][l] = sum12 + 4.0 * sum34;
-        r[3][l] = diff12 + 8.0 * diff34 + v5[l];
-    }
-    r
+fn output_transform([m0, m1, m2, m3, m4, m5]: [f32; TILE]) -> [f32; OUT] {
+    let (sum12, diff12) = (m1 + m2, m1 - m2);
+    let (sum34, diff34) = (m3 + m4, m3 - m4);
+    [
+        m0 + sum12 + sum34,
+        diff12 + 2.0 * diff34,
+        sum12 + 4.0 * sum34,
+        diff12 + 8.0 * diff34 + m5,
+    ]
 }
 
-/// The first `LANES` values of `src` (fewer at a ragged end: the other lanes keep stale
-/// values, which only ever reach lanes that are not stored).
+/// `outputs[k][c] = transform(inputs[0][c], …, inputs[5][c])[k]` for every channel c:
+/// one of the 1-D transforms over whole channel vectors (contiguous, so it vectorises).
 #[inline(always)]
-fn load(dst: &mut Lanes, src: &[f32]) {
-    match src.get(..LANES) {
-        Some(full) => *dst = full.try_into().expect("LANES values"),
-        None => dst[..src.len()].copy_from_slice(src),
+fn transform_channels<const N: usize>(
+    inputs: [&[f32]; TILE],
+    mut outputs: [&mut [f32]; N],
+    transform: impl Fn([f32; TILE]) -> [f32; N],
+) {
+    let n = outputs[0].len();
+    let inputs = inputs.map(|s| &s[..n]);
+    for o in outputs.iter_mut() {
+        assert_eq!(o.len(), n);
     }
-}
-
-/// `dst` from the first `dst.len()` (at most `LANES`) values of `src`.
-#[inline(always)]
-fn store(dst: &mut [f32], src: &Lanes) {
-    match <&mut Lanes>::try_from(&mut *dst) {
-        Ok(full) => *full = *src,
-        Err(_) => {
-            let n = dst.len();
-            dst.copy_from_slice(&src[..n]);
+    for c in 0..n {
+        let values = transform(inputs.map(|s| s[c]));
+        for (o, v) in outputs.iter_mut().zip(values) {
+            o[c] = v;
         }
     }
 }
@@ -139,138 +110,175 @@ struct TileRun {
     tiles: usize,
 }
 
-/// The input tiles of a run in the transform domain:
-/// `transformed[(point·run.tiles + tile)·inputs + c]`.
+impl TileRun {
+    /// Input columns the run reads: `x0 − 1 ..< x0 + 4·tiles + 1`.
+    fn columns(&self) -> usize {
+        self.tiles * OUT + KERNEL - 1
+    }
+}
+
+/// The input tiles of a run in the transform domain,
+/// `transformed[(point·run.tiles + tile)·inputs + c]`, in two passes: Bᵀ down the six
+/// input rows of every column the run reads (into `band`, row i of the result at
+/// `band[(i·columns + column)·inputs + c]`; each column once, though neighbouring tiles
+/// share two), then B along each tile's six columns.
 #[inline(always)]
-fn transform_inputs(input: &FeatureMap, run: TileRun, transformed: &mut [f32]) {
+fn transform_inputs(
+    input: &FeatureMap,
+    run: TileRun,
+    (band, zeros): (&mut [f32], &[f32]),
+    transformed: &mut [f32],
+) {
     let (w, h, cin) = (input.width, input.height, input.channels);
-    let (y0, tiles) = (run.y0, run.tiles);
-    let mut d = [[0f32; LANES]; POINTS];
-    let mut half = [[0f32; LANES]; POINTS];
-    for tx in 0..tiles {
-        let x0 = run.x0 + tx * OUT;
-        for c0 in (0..cin).step_by(LANES) {
-            let n = LANES.min(cin - c0);
-            for i in 0..TILE {
-                let yy = (y0 + i).wrapping_sub(1);
-                for j in 0..TILE {
-                    let xx = (x0 + j).wrapping_sub(1);
-                    let slot = &mut d[i * TILE + j];
-                    if yy < h && xx < w {
-                        load(slot, &input.pixel(xx, yy)[c0..c0 + n]);
-                    } else {
-                        *slot = [0.0; LANES];
-                    }
-                }
+    let columns = run.columns();
+    let band = &mut band[..TILE * columns * cin];
+    for column in 0..columns {
+        let xx = (run.x0 + column).wrapping_sub(1);
+        let rows: [&[f32]; TILE] = std::array::from_fn(|i| {
+            let yy = (run.y0 + i).wrapping_sub(1);
+            if yy < h && xx < w {
+                input.pixel(xx, yy)
+            } else {
+                zeros
             }
-            // Bᵀ d over the tile's columns, then (Bᵀ d) B over its rows.
-            for j in 0..TILE {
-                let column = input_transform(&d, |i| i * TILE + j);
-                for (i, value) in column.into_iter().enumerate() {
-                    half[i * TILE + j] = value;
-                }
-            }
-            for i in 0..TILE {
-                let row = input_transform(&half, |j| i * TILE + j);
-                for (j, value) in row.iter().enumerate() {
-                    let point = i * TILE + j;
-                    store(
-                        &mut transformed[(point * tiles + tx) * cin + c0..][..n],
-                        value,
-                    );
-                }
-            }
+        });
+        let mut band_rows = band.chunks_exact_mut(columns * cin);
+        let outputs: [&mut [f32]; TILE] = std::array::from_fn(|_| {
+            let row = band_rows.next().expect("six band rows");
+            &mut row[column * cin..][..cin]
+        });
+        transform_channels(rows, outputs, input_transform);
+    }
+    let mut points = transformed[..POINTS * run.tiles * cin].chunks_exact_mut(run.tiles * cin);
+    let mut points: [&mut [f32]; POINTS] = std::array::from_fn(|_| points.next().expect("36"));
+    for (i, band_row) in band.chunks_exact(columns * cin).enumerate() {
+        for tile in 0..run.tiles {
+            let tile_columns: [&[f32]; TILE] =
+                std::array::from_fn(|j| &band_row[(tile * OUT + j) * cin..][..cin]);
+            let [p0, p1, p2, p3, p4, p5] = &mut points[i * TILE..(i + 1) * TILE] else {
+                unreachable!("six points per row of the tile")
+            };
+            let outputs = [p0, p1, p2, p3, p4, p5].map(|p| &mut p[tile * cin..][..cin]);
+            transform_channels(tile_columns, outputs, input_transform);
         }
     }
 }
 
 /// A run's output tiles from the products in the transform domain
 /// (`products[(point·run.tiles + tile)·outputs + o]`), plus bias, optionally rectified,
-/// into `out`: the run's row of tiles, `rows` ≤ 4 image rows of width `w`.
+/// into `out`: the run's row of tiles, `rows` ≤ 4 image rows of width `w`. Per tile, Aᵀ
+/// down each of its six columns (into `half`, `half[(k·6 + j)·outputs + o]`), then A
+/// along each of its four rows (into `pixels`, then biased into `out`).
 #[inline(always)]
 fn transform_outputs(
     products: &[f32],
-    layer: &ConvLayer,
-    relu: bool,
+    (layer, relu): (&ConvLayer, bool),
     (run, w, rows): (TileRun, usize, usize),
+    (half, pixels): (&mut [f32], &mut [f32]),
     out: &mut [f32],
 ) {
     let (cout, tiles) = (layer.outputs, run.tiles);
-    let mut m = [[0f32; LANES]; POINTS];
-    let mut half = [[0f32; LANES]; OUT * TILE];
-    for tx in 0..tiles {
-        let x0 = run.x0 + tx * OUT;
-        for c0 in (0..cout).step_by(LANES) {
-            let n = LANES.min(cout - c0);
-            for (point, value) in m.iter_mut().enumerate() {
-                load(value, &products[(point * tiles + tx) * cout + c0..][..n]);
-            }
-            // Aᵀ m over the columns, then (Aᵀ m) A over the rows.
-            for j in 0..TILE {
-                let column = output_transform(&m, |k| k * TILE + j);
-                for (i, value) in column.into_iter().enumerate() {
-                    half[i * TILE + j] = value;
-                }
-            }
-            let mut bias = [0f32; LANES];
-            load(&mut bias, &layer.bias[c0..c0 + n]);
-            for i in 0..rows.min(OUT) {
-                let row = output_transform(&half, |k| i * TILE + k);
-                for (j, value) in row.iter().enumerate().take(w - x0) {
-                    let mut pixel = [0f32; LANES];
-                    for l in 0..LANES {
-                        let v = value[l] + bias[l];
-                        pixel[l] = if relu { v.max(0.0) } else { v };
-                    }
-                    store(&mut out[(i * w + x0 + j) * cout + c0..][..n], &pixel);
+    let (half, pixels) = (&mut half[..OUT * TILE * cout], &mut pixels[..OUT * cout]);
+    for tile in 0..tiles {
+        let x0 = run.x0 + tile * OUT;
+        for j in 0..TILE {
+            let column: [&[f32]; TILE] = std::array::from_fn(|i| {
+                &products[((i * TILE + j) * tiles + tile) * cout..][..cout]
+            });
+            let mut half_rows = half.chunks_exact_mut(TILE * cout);
+            let outputs: [&mut [f32]; OUT] = std::array::from_fn(|_| {
+                let row = half_rows.next().expect("four rows");
+                &mut row[j * cout..][..cout]
+            });
+            transform_channels(column, outputs, output_transform);
+        }
+        let columns = OUT.min(w - x0);
+        for (k, half_row) in half.chunks_exact(TILE * cout).enumerate().take(rows) {
+            let inputs: [&[f32]; TILE] = std::array::from_fn(|j| &half_row[j * cout..][..cout]);
+            let mut tile_row = pixels.chunks_exact_mut(cout);
+            let outputs: [&mut [f32]; OUT] =
+                std::array::from_fn(|_| tile_row.next().expect("four pixels"));
+            transform_channels(inputs, outputs, output_transform);
+            let dst = &mut out[(k * w + x0) * cout..][..columns * cout];
+            for (dst, src) in dst.chunks_exact_mut(cout).zip(pixels.chunks_exact(cout)) {
+                for ((d, s), b) in dst.iter_mut().zip(src).zip(&layer.bias) {
+                    let v = s + b;
+                    *d = if relu { v.max(0.0) } else { v };
                 }
             }
         }
     }
 }
 
-/// [`transform_inputs`] compiled for AVX2 and FMA.
-///
-/// # Safety
-/// The CPU must support AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn transform_inputs_avx2(input: &FeatureMap, run: TileRun, transformed: &mut [f32]) {
-    transform_inputs(input, run, transformed)
-}
-
-/// [`transform_outputs`] compiled for AVX2 and FMA.
-///
-/// # Safety
-/// The CPU must support AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn transform_outputs_avx2(
-    products: &[f32],
-    layer: &ConvLayer,
-    relu: bool,
-    placement: (TileRun, usize, usize),
-    out: &mut [f32],
-) {
-    transform_outputs(products, layer, relu, placement, out)
-}
-
 /// Tiles transformed and multiplied together: the run's transform-domain inputs and
 /// products (2 × 36 × 32 × 64 floats for the network's 64 maps) stay in a core's L2 cache.
 const RUN_TILES: usize = 32;
 
-/// Per-thread scratch: a run of tiles in the transform domain, input and output side.
+/// Per-thread scratch: a run of tiles in the transform domain, input and output side,
+/// and the transforms' intermediate rows.
 #[derive(Default)]
 pub(crate) struct WinogradScratch {
     transformed: Vec<f32>,
     products: Vec<f32>,
+    band: Vec<f32>,
+    zeros: Vec<f32>,
+    half: Vec<f32>,
+    pixels: Vec<f32>,
+}
+
+impl WinogradScratch {
+    fn fit(&mut self, cin: usize, cout: usize) {
+        let columns = RUN_TILES * OUT + KERNEL - 1;
+        self.transformed.resize(POINTS * RUN_TILES * cin, 0.0);
+        self.products.resize(POINTS * RUN_TILES * cout, 0.0);
+        self.band.resize(TILE * columns * cin, 0.0);
+        self.zeros.resize(cin, 0.0);
+        self.half.resize(OUT * TILE * cout, 0.0);
+        self.pixels.resize(OUT * cout, 0.0);
+    }
 }
 
 /// Output rows `rows` of one "same" 3×3 convolution of `input` (rows outside it read as
 /// zeros) plus bias, optionally rectified, into `out` (`rows.len() × width × outputs`);
 /// `kernels` from [`transform_kernels`]. The same result as the direct convolution up to
-/// float rounding. Single-threaded: callers parallelise.
+/// float rounding. Single-threaded: callers parallelise. The transforms run compiled for
+/// AVX2 and FMA where the CPU has them, else portable.
 pub(crate) fn winograd_convolve_rows(
+    input: &FeatureMap,
+    layer: (&ConvLayer, &[f32], bool),
+    rows: Range<usize>,
+    out: &mut [f32],
+    scratch: &mut WinogradScratch,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::has_avx2_fma() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        unsafe { convolve_rows_avx2(input, layer, rows, out, scratch) };
+        return;
+    }
+    convolve_rows(input, layer, rows, out, scratch);
+}
+
+/// [`convolve_rows`] compiled for AVX2 and FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn convolve_rows_avx2(
+    input: &FeatureMap,
+    layer: (&ConvLayer, &[f32], bool),
+    rows: Range<usize>,
+    out: &mut [f32],
+    scratch: &mut WinogradScratch,
+) {
+    convolve_rows(input, layer, rows, out, scratch)
+}
+
+/// [`winograd_convolve_rows`] in portable code: runs of tiles transformed, multiplied
+/// point by point (`gemm`) and transformed back.
+#[inline(always)]
+fn convolve_rows(
     input: &FeatureMap,
     (layer, kernels, relu): (&ConvLayer, &[f32], bool),
     rows: Range<usize>,
@@ -279,10 +287,7 @@ pub(crate) fn winograd_convolve_rows(
 ) {
     let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
     let tiles_x = w.div_ceil(OUT);
-    #[cfg(target_arch = "x86_64")]
-    let avx2 = crate::cpu::has_avx2_fma();
-    s.transformed.resize(POINTS * RUN_TILES * cin, 0.0);
-    s.products.resize(POINTS * RUN_TILES * cout, 0.0);
+    s.fit(cin, cout);
     let out = &mut out[..rows.len() * w * cout];
     for (tile_row, out) in out.chunks_mut(OUT * w * cout).enumerate() {
         let tile_rows = out.len() / (w * cout);
@@ -293,15 +298,7 @@ pub(crate) fn winograd_convolve_rows(
                 tiles: RUN_TILES.min(tiles_x - first),
             };
             let t = run.tiles;
-            #[cfg(target_arch = "x86_64")]
-            if avx2 {
-                // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                unsafe { transform_inputs_avx2(input, run, &mut s.transformed) };
-            } else {
-                transform_inputs(input, run, &mut s.transformed);
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            transform_inputs(input, run, &mut s.transformed);
+            transform_inputs(input, run, (&mut s.band, &s.zeros), &mut s.transformed);
             for point in 0..POINTS {
                 matmul(
                     &mut s.products[point * t * cout..][..t * cout],
@@ -313,15 +310,20 @@ pub(crate) fn winograd_convolve_rows(
                 );
             }
             let placement = (run, w, tile_rows);
-            #[cfg(target_arch = "x86_64")]
-            if avx2 {
-                // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                unsafe { transform_outputs_avx2(&s.products, layer, relu, placement, out) };
-            } else {
-                transform_outputs(&s.products, layer, relu, placement, out);
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            transform_outputs(&s.products, layer, relu, placement, out);
+            let buffers = (&mut s.half[..], &mut s.pixels[..]);
+            transform_outputs(&s.products, (layer, relu), placement, buffers, out);
         }
     }
+}
+
+/// The portable twin of [`winograd_convolve_rows`], for the tests that check they agree.
+#[cfg(test)]
+pub(crate) fn portable_convolve_rows(
+    input: &FeatureMap,
+    layer: (&ConvLayer, &[f32], bool),
+    rows: Range<usize>,
+    out: &mut [f32],
+    scratch: &mut WinogradScratch,
+) {
+    convolve_rows(input, layer, rows, out, scratch)
 }
