@@ -63,6 +63,10 @@ pub fn estimate_contrast(
     let (negative, total, windows) = rows
         .par_iter()
         .map(|&y| {
+            // Every right window of the row once: each serves up to 64 / STEP left ones.
+            let right_windows: Vec<Option<Window>> = (0..w)
+                .map(|xr| (xr >= RADIUS && xr + RADIUS < w).then(|| Window::at(right, xr, y))?)
+                .collect();
             let (mut negative, mut total, mut windows) = (0.0f64, 0.0f64, 0usize);
             for x in (RADIUS..w.saturating_sub(RADIUS)).step_by(STEP) {
                 let Some(left_window) = Window::at(left, x, y) else {
@@ -70,11 +74,10 @@ pub fn estimate_contrast(
                 };
                 let best = (range.min..range.max)
                     .filter_map(|d| {
-                        let xr = x as i64 - i64::from(d);
-                        let inside = xr >= RADIUS as i64 && xr + (RADIUS as i64) < w as i64;
-                        inside.then(|| Window::at(right, xr as usize, y))?
+                        let xr = usize::try_from(x as i64 - i64::from(d)).ok()?;
+                        right_windows.get(xr)?.as_ref()
                     })
-                    .map(|right_window| left_window.correlation(&right_window))
+                    .map(|right_window| left_window.correlation(right_window))
                     .max_by(|a, b| a.abs().total_cmp(&b.abs()));
                 if let Some(c) = best {
                     let weight = f64::from(c * c);
