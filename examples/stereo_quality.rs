@@ -9,10 +9,11 @@
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
 //! fewer). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
 //! network; `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
-//! is every heterogeneous pair with its right image's contrast inverted; the refined chain
-//! runs with `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same`
-//! turns it off), which also prints how many pairs of each group it took for inverted
-//! (`ANAGLYPH_VOTES=1` prints every pair's vote).
+//! is every heterogeneous pair with its right image's contrast inverted, a fourth the same
+//! pairs with only the right image's lower half inverted. The refined chain runs with
+//! `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same` turns it
+//! off, `ANAGLYPH_CONTRAST=either` takes either sign per pixel), which also prints how many
+//! pairs of each group it took for inverted (`ANAGLYPH_VOTES=1` prints every pair's vote).
 
 use anaglyph_cnn::dataset::{
     rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
@@ -54,10 +55,10 @@ fn score(pairs: &[&StereoPair], cost: &MatchingCost<'_>, refine: bool, max_disp:
     for pair in pairs {
         let settings = if refine {
             MatchSettings {
-                contrast: if std::env::var("ANAGLYPH_CONTRAST").is_ok_and(|v| v == "same") {
-                    Contrast::Same
-                } else {
-                    Contrast::Auto
+                contrast: match std::env::var("ANAGLYPH_CONTRAST").as_deref() {
+                    Ok("same") => Contrast::Same,
+                    Ok("either") => Contrast::Either,
+                    _ => Contrast::Auto,
                 },
                 ..MatchSettings::for_cost(cost, range)
             }
@@ -189,7 +190,19 @@ fn main() -> anyhow::Result<()> {
             ..p.clone()
         })
         .collect();
-    let groups: [(&str, Vec<&StereoPair>); 3] = [
+    // The same pairs with only the right image's lower half inverted: a scene whose
+    // filters invert some surfaces and not others.
+    let half_inverted: Vec<StereoPair> = inverted
+        .iter()
+        .zip(pairs.iter().filter(|p| p.kind == PairKind::Heterogeneous))
+        .map(|(negative, p)| {
+            let split = p.right.width * (p.right.height / 2);
+            let mut right = p.right.clone();
+            right.data[split..].copy_from_slice(&negative.right.data[split..]);
+            StereoPair { right, ..p.clone() }
+        })
+        .collect();
+    let groups: [(&str, Vec<&StereoPair>); 4] = [
         (
             "heterogeneous",
             pairs
@@ -205,6 +218,7 @@ fn main() -> anyhow::Result<()> {
                 .collect(),
         ),
         ("inverted", inverted.iter().collect()),
+        ("half inverted", half_inverted.iter().collect()),
     ];
     println!(
         "| cost | chain | pairs | bad-2.0 % | avg error px | density % | s / Mpx / 100 disp | voted inverted |"

@@ -87,6 +87,10 @@ pub enum ContrastChoice {
     Same,
     /// The right image negated: the pair is known to invert.
     Inverted,
+    /// Either sign at every pixel: the lower cost of the right image as it is or negated
+    /// (scenes that invert only in part, such as foliage behind a near-infrared filter).
+    /// Lower error on every kind of held-out pair, one more network pass.
+    Either,
 }
 
 /// What the left–right stage does.

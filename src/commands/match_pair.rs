@@ -154,6 +154,7 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         ContrastChoice::Auto => Contrast::Auto,
         ContrastChoice::Same => Contrast::Same,
         ContrastChoice::Inverted => Contrast::Inverted,
+        ContrastChoice::Either => Contrast::Either,
     };
     let bar = spinner(format!(
         "matching {}×{} with {} over disparities {range}",

@@ -53,7 +53,7 @@ fn an_array_registered_to_a_plane_is_matched_and_reconstructed_over_signed_range
     simulate_registered(d);
     let truth = read_pfm(&d.join("sim/truth/r0c0_disparity.pfm")).unwrap();
     assert!(truth.data.iter().any(|&t| t < -3.0) && truth.data.iter().any(|&t| t > 3.0));
-    let matched = |range: &str| {
+    let matched = |range: &str, contrast: &str| {
         let o = anaglyph(
             &[
                 "match",
@@ -63,6 +63,8 @@ fn an_array_registered_to_a_plane_is_matched_and_reconstructed_over_signed_range
                 "sim/captures/r0c1.png",
                 "--disp-range",
                 range,
+                "--contrast",
+                contrast,
                 "--out",
                 "d.pfm",
             ],
@@ -71,14 +73,20 @@ fn an_array_registered_to_a_plane_is_matched_and_reconstructed_over_signed_range
         assert!(o.status.success(), "{}", stderr(&o));
         within_2px(&read_pfm(&d.join("d.pfm")).unwrap().data, &truth.data, 256)
     };
-    let signed = matched("-16:16");
-    let unsigned = matched("0:32");
-    eprintln!("match: {signed:.3} within 2 px over -16:16, {unsigned:.3} over 0:32");
-    // Measured: 0.957 and 0.832 (the points beyond the plane lost).
+    let signed = matched("-16:16", "auto");
+    let unsigned = matched("0:32", "auto");
+    let either = matched("-16:16", "either");
+    eprintln!(
+        "match: {signed:.3} within 2 px over -16:16, {unsigned:.3} over 0:32, \
+         {either:.3} over -16:16 with either sign"
+    );
+    // Measured: 0.957 and 0.832 (the points beyond the plane lost); with either sign per
+    // pixel, 0.956.
     assert!(
         signed > 0.9 && signed > unsigned + 0.08,
         "{signed} {unsigned}"
     );
+    assert!(either > 0.9, "{either}");
 
     // The estimated range reaches below zero; the reconstruction scores near the one with
     // the true disparities.

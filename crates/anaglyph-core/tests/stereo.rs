@@ -22,6 +22,11 @@ const LEARNED_HOMOGENEOUS_BOUND: f64 = 10.0;
 const VERTICAL_GOOD_BOUND: f64 = 0.88;
 /// MI across deep red and teal (measured 15.22 %).
 const MI_HETEROGENEOUS_BOUND: f64 = 20.0;
+/// Either sign per pixel on the teal | yellow-green pair with the right image's lower half
+/// negated (measured 9.52 %; the vote's one sign per pair: 28.54 %).
+const EITHER_HALF_INVERTED_BOUND: f64 = 12.0;
+/// Either sign per pixel on the same pair as captured (measured 7.05 %).
+const EITHER_CAPTURED_BOUND: f64 = 9.0;
 use std::path::Path;
 
 /// Disparities `[0, n)`.
@@ -527,4 +532,38 @@ fn the_chain_refuses_pairs_it_cannot_match_before_any_work() {
     let signed = MatchSettings::for_cost(&cost, DisparityRange::new(-40, 4).unwrap());
     let err = match_pair(&left, &right, &cost, &signed).unwrap_err();
     assert!(err.to_string().contains("up to 40 px"), "{err}");
+}
+
+#[test]
+fn either_sign_matches_a_pair_that_inverts_in_part() {
+    // The tabletop pair with the right image's lower half negated, as when a filter
+    // inverts some surfaces and not others: one sign per pair fits only one half.
+    let network = MatchingNetwork::default_fast().unwrap();
+    let cost = MatchingCost::Learned(&network);
+    let (left, right, truth) = tabletop_pair(["gel_teal", "gel_yellow_green"], (256, 192), 1800.0);
+    let split = right.width * (right.height / 2);
+    let mut half_inverted = right.clone();
+    half_inverted.data[split..].copy_from_slice(&negated(&right).data[split..]);
+    let bad2_with = |right: &GreyImage, contrast: Contrast| {
+        let settings = MatchSettings {
+            contrast,
+            ..MatchSettings::for_cost(&cost, up_to(64))
+        };
+        let out = match_pair(&left, right, &cost, &settings).unwrap();
+        bad2_of(&out.disparity.data, &truth, left.width, 64)
+    };
+    let (voted, either) = (
+        bad2_with(&half_inverted, Contrast::Auto),
+        bad2_with(&half_inverted, Contrast::Either),
+    );
+    let either_as_captured = bad2_with(&right, Contrast::Either);
+    eprintln!(
+        "half inverted: {voted:.2} % with the vote, {either:.2} % with either sign; \
+         as captured with either sign {either_as_captured:.2} %"
+    );
+    assert!(either < EITHER_HALF_INVERTED_BOUND, "{either}");
+    assert!(
+        either_as_captured < EITHER_CAPTURED_BOUND,
+        "{either_as_captured}"
+    );
 }

@@ -26,6 +26,9 @@ pub enum Contrast {
     Inverted,
     /// Inverted when [`estimate_contrast`] says so.
     Auto,
+    /// Either sign at every pixel and disparity: the cost of the right image as it is or
+    /// negated, whichever is lower (for scenes that invert only in part).
+    Either,
 }
 
 /// The vote of [`estimate_contrast`].

@@ -50,6 +50,15 @@ impl CostVolume {
         matched_indices(x, self.width, self.range)
     }
 
+    /// Keeps, at every pixel and disparity, the lower of this volume's cost and `other`'s
+    /// (a volume of the same size and range).
+    pub fn keep_lower(&mut self, other: &CostVolume) {
+        debug_assert_eq!(self.data.len(), other.data.len());
+        for (a, b) in self.data.iter_mut().zip(&other.data) {
+            *a = a.min(*b);
+        }
+    }
+
     /// The index of a whole disparity `d` (None outside the range or not finite).
     pub fn index_of(&self, d: f32) -> Option<usize> {
         self.range

@@ -4,6 +4,7 @@
 //! fully connected layers on every (pixel, disparity) pair. The result is an ordinary
 //! [`CostVolume`] in [0, 1] for the refinement chain.
 
+use super::contrast::negated;
 use super::cost_volume::{matched_indices, right_column};
 use super::network::MatchingNetwork;
 use super::tower::{tower_features, FeatureMap};
@@ -56,11 +57,46 @@ pub fn learned_cost_volume(
         || tower_features(network, left),
         || tower_features(network, right),
     );
+    feature_costs(network, &fl, &fr, range)
+}
+
+/// The costs between two images' features: cosine for fast networks, the fully connected
+/// head for accurate ones.
+fn feature_costs(
+    network: &MatchingNetwork,
+    fl: &FeatureMap,
+    fr: &FeatureMap,
+    range: DisparityRange,
+) -> CostVolume {
     if network.is_accurate() {
-        accurate_costs(network, &fl, &fr, range)
+        accurate_costs(network, fl, fr, range)
     } else {
-        cosine_costs(&fl, &fr, range)
+        cosine_costs(fl, fr, range)
     }
+}
+
+/// [`learned_cost_volume`] for either sign of the right image at every pixel and
+/// disparity ([`super::Contrast::Either`]): the lower of the costs against `right` and
+/// against it negated, the left image's features computed once.
+pub fn learned_cost_volume_either_sign(
+    network: &MatchingNetwork,
+    left: &GreyImage,
+    right: &GreyImage,
+    range: DisparityRange,
+) -> CostVolume {
+    let negated_right = negated(right);
+    let (fl, (fr, fr_negated)) = rayon::join(
+        || tower_features(network, left),
+        || {
+            rayon::join(
+                || tower_features(network, right),
+                || tower_features(network, &negated_right),
+            )
+        },
+    );
+    let mut volume = feature_costs(network, &fl, &fr, range);
+    volume.keep_lower(&feature_costs(network, &fl, &fr_negated, range));
+    volume
 }
 
 /// Dot product with eight independent accumulators, so that the compiler vectorises it.

@@ -8,10 +8,10 @@
 use super::contrast::{estimate_contrast, negated, Contrast, ContrastEstimate};
 use super::{
     bilateral_filter, census_cost_volume, classify, cross_based_aggregation, fill_inconsistent,
-    learned_cost_volume, median_filter, mutual_information_cost_volume, normalise_image,
-    right_disparity, semi_global_matching, subpixel_disparity, windowed_subpixel, winner_take_all,
-    zncc_cost_volume, Bilateral, Consistency, CostVolume, CrossAggregation, GreyImage,
-    MatchingNetwork, SgmParameters,
+    learned_cost_volume, learned_cost_volume_either_sign, median_filter,
+    mutual_information_cost_volume, normalise_image, right_disparity, semi_global_matching,
+    subpixel_disparity, windowed_subpixel, winner_take_all, zncc_cost_volume, Bilateral,
+    Consistency, CostVolume, CrossAggregation, GreyImage, MatchingNetwork, SgmParameters,
 };
 use crate::disparity::{DisparityConvention, DisparityMap, DisparityRange, PairAxis};
 use crate::{Error, Result};
@@ -248,7 +248,7 @@ pub fn match_pair(
     };
     let (left_unit, given_right_unit) = (unit_range(left), unit_range(right));
     let (inverted, contrast) = match settings.contrast {
-        Contrast::Same => (false, None),
+        Contrast::Same | Contrast::Either => (false, None),
         Contrast::Inverted => (true, None),
         Contrast::Auto => {
             let vote = estimate_contrast(&left_unit, &given_right_unit, range);
@@ -263,25 +263,14 @@ pub fn match_pair(
     } else {
         given_right_unit
     };
-    let sgm_or_raw = |volume: CostVolume| match &settings.sgm {
-        Some(p) => semi_global_matching(&volume, &left_unit, &right_unit, p),
-        None => volume,
-    };
-    let mut volume = match cost {
-        MatchingCost::Learned(network) => learned_cost_volume(network, left, right, range),
-        MatchingCost::Census => census_cost_volume(&left_unit, &right_unit, range),
-        MatchingCost::Zncc => zncc_cost_volume(&left_unit, &right_unit, range),
-        MatchingCost::MutualInformation { iterations } => {
-            let census = census_cost_volume(&left_unit, &right_unit, range);
-            let mut disparity = winner_take_all(&sgm_or_raw(census));
-            let mut volume =
-                mutual_information_cost_volume(&left_unit, &right_unit, range, &disparity);
-            for _ in 1..*iterations {
-                disparity = winner_take_all(&sgm_or_raw(volume));
-                volume = mutual_information_cost_volume(&left_unit, &right_unit, range, &disparity);
-            }
-            volume
-        }
+    let (sgm, pair) = (
+        settings.sgm.as_ref(),
+        ((left, &left_unit), (right, &right_unit)),
+    );
+    let mut volume = if settings.contrast == Contrast::Either {
+        either_sign_cost_volume(cost, pair.0, pair.1, range, sgm)
+    } else {
+        cost_volume(cost, pair.0, pair.1, range, sgm)
     };
     lap("cost", &mut timings);
     let raw = (settings.subpixel && settings.subpixel_window.is_some()).then(|| volume.clone());
@@ -345,6 +334,63 @@ pub fn match_pair(
         contrast,
         timings,
     })
+}
+
+/// The cost volume of a pair: `left` and `right` as given (the learned cost normalises
+/// them itself) and in unit range (the classical costs). Mutual information starts from
+/// census disparities, refined by SGM when `sgm` is set.
+fn cost_volume(
+    cost: &MatchingCost<'_>,
+    (left, left_unit): (&GreyImage, &GreyImage),
+    (right, right_unit): (&GreyImage, &GreyImage),
+    range: DisparityRange,
+    sgm: Option<&SgmParameters>,
+) -> CostVolume {
+    let sgm_or_raw = |volume: CostVolume| match sgm {
+        Some(p) => semi_global_matching(&volume, left_unit, right_unit, p),
+        None => volume,
+    };
+    match cost {
+        MatchingCost::Learned(network) => learned_cost_volume(network, left, right, range),
+        MatchingCost::Census => census_cost_volume(left_unit, right_unit, range),
+        MatchingCost::Zncc => zncc_cost_volume(left_unit, right_unit, range),
+        MatchingCost::MutualInformation { iterations } => {
+            let census = census_cost_volume(left_unit, right_unit, range);
+            let mut disparity = winner_take_all(&sgm_or_raw(census));
+            let mut volume =
+                mutual_information_cost_volume(left_unit, right_unit, range, &disparity);
+            for _ in 1..*iterations {
+                disparity = winner_take_all(&sgm_or_raw(volume));
+                volume = mutual_information_cost_volume(left_unit, right_unit, range, &disparity);
+            }
+            volume
+        }
+    }
+}
+
+/// [`cost_volume`] for either sign of the right image at every pixel and disparity: the
+/// lower of the costs against `right` and against it negated.
+fn either_sign_cost_volume(
+    cost: &MatchingCost<'_>,
+    left: (&GreyImage, &GreyImage),
+    right: (&GreyImage, &GreyImage),
+    range: DisparityRange,
+    sgm: Option<&SgmParameters>,
+) -> CostVolume {
+    if let MatchingCost::Learned(network) = cost {
+        return learned_cost_volume_either_sign(network, left.0, right.0, range);
+    }
+    let negated_right = negated(right.0);
+    let negated_unit = unit_range(&negated_right);
+    let mut volume = cost_volume(cost, left, right, range, sgm);
+    volume.keep_lower(&cost_volume(
+        cost,
+        left,
+        (&negated_right, &negated_unit),
+        range,
+        sgm,
+    ));
+    volume
 }
 
 /// The image with rows and columns swapped.

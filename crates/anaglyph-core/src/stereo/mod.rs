@@ -30,7 +30,7 @@ pub use disparity_filters::{
     bilateral_filter, classify, fill_inconsistent, median_filter, right_disparity, Bilateral,
     Consistency,
 };
-pub use learned::{cosine_costs, learned_cost_volume};
+pub use learned::{cosine_costs, learned_cost_volume, learned_cost_volume_either_sign};
 pub use matcher::{
     match_pair, match_vertical, transpose, unit_range, LeftRight, MatchOutput, MatchSettings,
     MatchingCost,
