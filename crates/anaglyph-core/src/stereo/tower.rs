@@ -273,7 +273,7 @@ fn normalise_l2(features: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stereo::winograd::{portable_convolve_rows, transform_kernels};
+    use crate::stereo::winograd::{convolve_rows as portable_convolve_rows, transform_kernels};
 
     /// Deterministic values in [-1, 1).
     fn noise(n: usize, seed: u64) -> Vec<f32> {

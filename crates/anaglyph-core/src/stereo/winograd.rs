@@ -275,10 +275,11 @@ unsafe fn convolve_rows_avx2(
     convolve_rows(input, layer, rows, out, scratch)
 }
 
-/// [`winograd_convolve_rows`] in portable code: runs of tiles transformed, multiplied
-/// point by point (`gemm`) and transformed back.
+/// [`winograd_convolve_rows`] in portable code (its twin, which the tests check against
+/// the direct convolution too): runs of tiles transformed, multiplied point by point
+/// (`gemm`) and transformed back.
 #[inline(always)]
-fn convolve_rows(
+pub(crate) fn convolve_rows(
     input: &FeatureMap,
     (layer, kernels, relu): (&ConvLayer, &[f32], bool),
     rows: Range<usize>,
@@ -314,16 +315,4 @@ fn convolve_rows(
             transform_outputs(&s.products, (layer, relu), placement, buffers, out);
         }
     }
-}
-
-/// The portable twin of [`winograd_convolve_rows`], for the tests that check they agree.
-#[cfg(test)]
-pub(crate) fn portable_convolve_rows(
-    input: &FeatureMap,
-    layer: (&ConvLayer, &[f32], bool),
-    rows: Range<usize>,
-    out: &mut [f32],
-    scratch: &mut WinogradScratch,
-) {
-    convolve_rows(input, layer, rows, out, scratch)
 }
