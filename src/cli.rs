@@ -5,8 +5,12 @@ use anaglyph_core::demux::Solver;
 use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::filters::SelectionCriterion;
 use anaglyph_core::plane_calibration::BoardPattern;
-use anaglyph_core::reconstruct::{DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE};
+use anaglyph_core::reconstruct::{
+    Preset, Products, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
+};
+use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::OutOfBand;
+use anaglyph_core::stereo::{Contrast, GreyChannel, LeftRight, MatchMethod};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -52,58 +56,6 @@ pub enum Command {
     Eval(EvalArgs),
 }
 
-/// Matching cost of `anaglyph match`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MatchMethod {
-    /// Learned cross-spectral cost, MC-CNN fast (the default).
-    Mccnn,
-    /// MC-CNN accurate (needs --model: its weights are not embedded).
-    MccnnAccurate,
-    /// Census transform, 7×9 window.
-    Census,
-    /// Zero-mean normalised cross-correlation, 9×9 window.
-    Zncc,
-    /// Hirschmüller's mutual information, iterated from census disparities.
-    Mi,
-}
-
-/// Which part of a colour image is matched.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ChannelChoice {
-    /// Rec. 709 luminance of RGB (grey images as they are).
-    Luminance,
-    R,
-    G,
-    B,
-}
-
-/// How `match` treats the sign of the pair's contrast.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ContrastChoice {
-    /// Vote on the sign of the windows' correlations and negate the right image when the
-    /// pair inverts (red against cyan filters).
-    Auto,
-    /// The right image as it is.
-    Same,
-    /// The right image negated: the pair is known to invert.
-    Inverted,
-    /// Either sign at every pixel: the lower cost of the right image as it is or negated
-    /// (scenes that invert only in part, such as foliage behind a near-infrared filter).
-    /// Lower error on every kind of held-out pair, one more network pass.
-    Either,
-}
-
-/// What the left–right stage does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum LeftRightChoice {
-    Off,
-    /// Inconsistent pixels become invalid (+inf in the PFM).
-    Check,
-    /// Inconsistent pixels are filled (occlusions from the background side, mismatches
-    /// by a 16-direction median).
-    Fill,
-}
-
 #[derive(Debug, clap::Args)]
 pub struct MatchArgs {
     /// Left (reference) image: 8- or 16-bit PNG or TIFF, grey or RGB.
@@ -136,11 +88,11 @@ pub struct MatchArgs {
     /// Colour-mapped preview PNG of the disparity.
     #[arg(long)]
     pub preview: Option<PathBuf>,
-    #[arg(long, value_enum, default_value_t = ChannelChoice::Luminance)]
-    pub channel: ChannelChoice,
+    #[arg(long, value_enum, default_value_t = GreyChannel::Luminance)]
+    pub channel: GreyChannel,
     /// Whether the pair's contrast is inverted (bright in one filter, dark in the other).
-    #[arg(long, value_enum, default_value_t = ContrastChoice::Auto)]
-    pub contrast: ContrastChoice,
+    #[arg(long, value_enum, default_value_t = Contrast::Auto)]
+    pub contrast: Contrast,
     /// Skip cross-based cost aggregation (only the accurate chain uses it).
     #[arg(long, help_heading = "Ablation")]
     pub no_aggregation: bool,
@@ -150,8 +102,8 @@ pub struct MatchArgs {
     /// SGM path directions.
     #[arg(long, help_heading = "Ablation", default_value_t = 4, value_parser = clap::value_parser!(u8).range(4..=8))]
     pub sgm_paths: u8,
-    #[arg(long, help_heading = "Ablation", value_enum, default_value_t = LeftRightChoice::Fill)]
-    pub left_right: LeftRightChoice,
+    #[arg(long, help_heading = "Ablation", value_enum, default_value_t = LeftRight::CheckAndFill)]
+    pub left_right: LeftRight,
     /// Skip parabolic subpixel refinement.
     #[arg(long, help_heading = "Ablation")]
     pub no_subpixel: bool,
@@ -373,8 +325,8 @@ pub struct RigInitArgs {
     /// Overwrite an existing file.
     #[arg(long)]
     pub force: bool,
-    #[arg(long, value_enum, default_value_t = CriterionArg::Condition)]
-    pub criterion: CriterionArg,
+    #[arg(long, value_enum, default_value_t = SelectionCriterion::Condition)]
+    pub criterion: SelectionCriterion,
     /// Sensor curve ("builtin:<name>" or CSV path).
     #[arg(long, default_value = "builtin:canon_eos_5d_mark_ii")]
     pub sensor: String,
@@ -395,23 +347,6 @@ pub struct RigShowArgs {
     pub export_c: Option<PathBuf>,
 }
 
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum CriterionArg {
-    /// Smallest cond(C), as the paper.
-    Condition,
-    /// Smallest expected reconstruction error under sensor noise.
-    Noise,
-}
-
-impl From<CriterionArg> for SelectionCriterion {
-    fn from(c: CriterionArg) -> Self {
-        match c {
-            CriterionArg::Condition => SelectionCriterion::Condition,
-            CriterionArg::Noise => SelectionCriterion::Noise,
-        }
-    }
-}
-
 #[derive(Debug, clap::Args)]
 pub struct SelectFiltersArgs {
     /// How many filters (cameras) to choose.
@@ -426,8 +361,8 @@ pub struct SelectFiltersArgs {
     /// Illuminant ("builtin:<name>", CSV path, or "none").
     #[arg(long, default_value = "builtin:cie_a")]
     pub illuminant: String,
-    #[arg(long, value_enum, default_value_t = CriterionArg::Condition)]
-    pub criterion: CriterionArg,
+    #[arg(long, value_enum, default_value_t = SelectionCriterion::Condition)]
+    pub criterion: SelectionCriterion,
     /// Smoothness weight λ of the solver the noise criterion assumes.
     #[arg(long, default_value_t = 0.01)]
     pub lambda: f64,
@@ -443,28 +378,11 @@ pub struct SelectFiltersArgs {
     /// Search exhaustively up to this many subsets, otherwise greedy selection plus swaps.
     #[arg(long, default_value_t = anaglyph_core::filters::EXHAUSTIVE_LIMIT)]
     pub exhaustive_limit: u64,
-    #[arg(long, value_enum, default_value_t = OutOfBandArg::Extend)]
-    pub out_of_band: OutOfBandArg,
+    #[arg(long, value_enum, default_value_t = OutOfBand::Extend)]
+    pub out_of_band: OutOfBand,
     /// Write the report as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum OutOfBandArg {
-    Extend,
-    Clamp,
-    Ignore,
-}
-
-impl From<OutOfBandArg> for OutOfBand {
-    fn from(o: OutOfBandArg) -> Self {
-        match o {
-            OutOfBandArg::Extend => OutOfBand::Extend,
-            OutOfBandArg::Clamp => OutOfBand::Clamp,
-            OutOfBandArg::Ignore => OutOfBand::Ignore,
-        }
-    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -511,32 +429,6 @@ pub struct CalibrateFilterArgs {
     pub relative_error: f64,
 }
 
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum SolverArg {
-    /// Batched closed form + exact active set (default, fastest).
-    Exact,
-    /// Accelerated projected gradient descent.
-    GradientDescent,
-    /// Conjugate gradient inside the active-set loop.
-    ConjugateGradient,
-    /// LSQR inside the active-set loop.
-    Lsqr,
-    /// Plain dense per-pixel reference.
-    Reference,
-}
-
-impl From<SolverArg> for Solver {
-    fn from(s: SolverArg) -> Self {
-        match s {
-            SolverArg::Exact => Solver::Exact,
-            SolverArg::GradientDescent => Solver::ProjectedGradient,
-            SolverArg::ConjugateGradient => Solver::ConjugateGradient,
-            SolverArg::Lsqr => Solver::Lsqr,
-            SolverArg::Reference => Solver::Reference,
-        }
-    }
-}
-
 /// Parses `START:STEP` (nm).
 fn parse_wavelengths(text: &str) -> Result<(f64, f64), String> {
     let (a, b) = text
@@ -574,43 +466,14 @@ pub struct DemuxArgs {
     /// Smoothness weight λ (applied exactly).
     #[arg(long, default_value_t = 0.01)]
     pub lambda: f64,
-    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
-    pub solver: SolverArg,
+    #[arg(long, value_enum, default_value_t = Solver::Exact)]
+    pub solver: Solver,
     /// Boolean mask of P's shape (true = use the measurement).
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Relative tolerance of the iterative solvers, in (0, 1).
     #[arg(long, default_value_t = 1e-10, value_parser = parse_tolerance)]
     pub tolerance: f64,
-}
-
-/// How views are registered.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum RegistrationChoice {
-    /// Each view against all others at once along the array geometry (learned cost).
-    MultiBaseline,
-    /// Row and column neighbours matched pairwise, fused.
-    Pairwise,
-}
-
-/// What multi-baseline registration compares the views by.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MatchingImageChoice {
-    /// The leading common signals of the array: each camera's channels mixed into what
-    /// every camera can estimate, so that filters do not invert contrast between views.
-    CommonSignals,
-    /// Each camera's luminance (the paper's input).
-    Luminance,
-}
-
-/// How the warp reads a camera at a fractional position.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum WarpKernelChoice {
-    /// Lanczos-3 (6×6 taps) where the support lies on one surface, bilinear elsewhere:
-    /// keeps pixel-scale texture (the default; best with refinement).
-    Lanczos3,
-    /// Bilinear: averages sensor noise; slightly better with --no-refine --no-scene-prior.
-    Bilinear,
 }
 
 /// Views of the array: `all` or a list of camera names like `r0c0,r1c2`.
@@ -748,8 +611,8 @@ pub struct ReconstructArgs {
     /// What each view gets: `cube` (reflectance, views/), `registered` (every camera's
     /// capture warped into the view, registered/: band names = cameras, NaN where a
     /// camera does not see the point) or `both`.
-    #[arg(long, value_enum, default_value_t = OutputChoice::Cube)]
-    pub output: OutputChoice,
+    #[arg(long, value_enum, default_value_t = Products::Cubes)]
+    pub output: Products,
     /// Scene illuminant (CSV, builtin:<name>, or `none` for white boards only) folded into
     /// C instead of the rig's; needed with exposure metadata when there is no white board.
     #[arg(long)]
@@ -766,8 +629,8 @@ pub struct ReconstructArgs {
     /// (a lighter scene prior: about 15 % quicker), `paper` (the paper's pipeline: Eq. 6
     /// on bilinearly warped measurements, no prior, no refinement). Tuning options
     /// override it.
-    #[arg(long, value_enum, default_value_t = PresetChoice::Default)]
-    pub preset: PresetChoice,
+    #[arg(long, value_enum, default_value_t = Preset::Default)]
+    pub preset: Preset,
     /// Reflectance of the white board.
     #[arg(long, default_value_t = DEFAULT_WHITE_REFLECTANCE)]
     pub white_reflectance: f64,
@@ -803,9 +666,9 @@ impl ReconstructArgs {
 #[derive(Debug, clap::Args)]
 #[command(next_help_heading = "Registration")]
 pub struct RegistrationArgs {
-    #[arg(long, value_enum, default_value_t = RegistrationChoice::MultiBaseline,
+    #[arg(long, value_enum, default_value_t = RegistrationMode::MultiBaseline,
           conflicts_with = "true_disparity")]
-    pub registration: RegistrationChoice,
+    pub registration: RegistrationMode,
     /// Matching cost (multi-baseline registration needs mccnn).
     #[arg(long, value_enum, default_value_t = MatchMethod::Mccnn)]
     pub method: MatchMethod,
@@ -821,12 +684,12 @@ pub struct RegistrationArgs {
 pub struct TuningArgs {
     /// What multi-baseline registration compares the views by [default: common-signals].
     #[arg(long, value_enum)]
-    pub matching_image: Option<MatchingImageChoice>,
+    pub matching_image: Option<MatchingImage>,
     /// How the warp reads each camera at fractional positions [default: lanczos3].
     #[arg(long, value_enum)]
-    pub warp_kernel: Option<WarpKernelChoice>,
-    #[arg(long, value_enum, default_value_t = SolverArg::Exact)]
-    pub solver: SolverArg,
+    pub warp_kernel: Option<WarpKernel>,
+    #[arg(long, value_enum, default_value_t = Solver::Exact)]
+    pub solver: Solver,
     /// Admit the warped measurements a camera's own map disputes but the view's depth
     /// order allows, and keep them where a pixel's residual with them stays within T times
     /// its residual without them; 0: the cameras' maps decide visibility alone [default: 2].
@@ -866,22 +729,6 @@ pub struct TuningArgs {
     /// of the view's median residual; 0: equal weights [default: 1.5].
     #[arg(long, value_parser = parse_non_negative)]
     pub refine_confidence: Option<f64>,
-}
-
-/// `reconstruct --output`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum OutputChoice {
-    Cube,
-    Registered,
-    Both,
-}
-
-/// `reconstruct --preset`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum PresetChoice {
-    Default,
-    Fast,
-    Paper,
 }
 
 #[derive(Debug, clap::Args)]

@@ -481,7 +481,7 @@ fn simulate_writes_the_documented_layout_and_rejects_bad_scenes() {
         &["simulate", "--scene", "nowhere", "--out", "x"],
         dir.path(),
     );
-    assert_clean_failure(&o, "not a preset");
+    assert_clean_failure(&o, "no scene preset or file 'nowhere'");
     let o = anaglyph(
         &[
             "simulate", "--scene", "random", "--seed", "3", "--size", "0x10", "--out", "x",

@@ -132,7 +132,7 @@ pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     warn_if_ill_conditioned(&c, rows, n, args.lambda);
     let options = DemuxOptions {
         lambda: args.lambda,
-        solver: args.solver.into(),
+        solver: args.solver,
         tolerance: args.tolerance,
         ..DemuxOptions::default()
     };

@@ -3,84 +3,17 @@
 //! report of the settings and per-stage timings.
 
 use super::{check_output_file, format_seconds};
-use crate::cli::{ChannelChoice, ContrastChoice, LeftRightChoice, MatchArgs, MatchMethod};
+use crate::cli::MatchArgs;
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
-use anaglyph_core::stereo::{
-    match_pair, Contrast, DisparityRange, GreyImage, LeftRight, MatchSettings, MatchingCost,
-    MatchingNetwork,
-};
+use anaglyph_core::stereo::{match_pair, DisparityRange, GreyChannel, GreyImage, MatchSettings};
 use std::path::Path;
 use std::time::Instant;
 
 /// Reads one image as the grey plane to match.
-fn load_grey(path: &Path, channel: ChannelChoice) -> anyhow::Result<GreyImage> {
+fn load_grey(path: &Path, channel: GreyChannel) -> anyhow::Result<GreyImage> {
     let image = read_linear_image(path)?;
-    let c = image.channels;
-    let data: Vec<f32> = image
-        .data
-        .chunks_exact(c)
-        .map(|p| match (c, channel) {
-            (1, _) => p[0],
-            (_, ChannelChoice::Luminance) => 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2],
-            (_, ChannelChoice::R) => p[0],
-            (_, ChannelChoice::G) => p[1],
-            (_, ChannelChoice::B) => p[2],
-        })
-        .collect();
-    if c == 1 && channel != ChannelChoice::Luminance {
-        anyhow::bail!(
-            "{}: --channel {channel:?} needs an RGB image, this one is grey",
-            path.display()
-        );
-    }
-    Ok(GreyImage {
-        channels: 1,
-        width: image.width,
-        height: image.height,
-        data,
-    })
-}
-
-/// The network a matching method needs (None for the classical costs).
-pub fn load_network(
-    method: MatchMethod,
-    model: Option<&Path>,
-) -> anyhow::Result<Option<MatchingNetwork>> {
-    let network = match (method, model) {
-        (MatchMethod::Mccnn | MatchMethod::MccnnAccurate, Some(path)) => {
-            Some(MatchingNetwork::load(path)?)
-        }
-        (MatchMethod::Mccnn, None) => Some(MatchingNetwork::default_fast()?),
-        (MatchMethod::MccnnAccurate, None) => anyhow::bail!(
-            "--method mccnn-accurate needs --model PATH (train one with `anaglyph train --arch accurate`)"
-        ),
-        (_, Some(_)) => anyhow::bail!("--model only applies to --method mccnn or mccnn-accurate"),
-        _ => None,
-    };
-    if let Some(n) = &network {
-        if (method == MatchMethod::MccnnAccurate) != n.is_accurate() {
-            anyhow::bail!(
-                "--method {method:?} but the model is the {} network",
-                if n.is_accurate() { "accurate" } else { "fast" }
-            );
-        }
-    }
-    Ok(network)
-}
-
-/// The matching cost of a method, borrowing its network.
-pub fn matching_cost(
-    method: MatchMethod,
-    network: Option<&MatchingNetwork>,
-) -> anyhow::Result<MatchingCost<'_>> {
-    Ok(match (method, network) {
-        (MatchMethod::Census, _) => MatchingCost::Census,
-        (MatchMethod::Zncc, _) => MatchingCost::Zncc,
-        (MatchMethod::Mi, _) => MatchingCost::MutualInformation { iterations: 3 },
-        (_, Some(n)) => MatchingCost::Learned(n),
-        (_, None) => anyhow::bail!("--method {method:?} needs a network"),
-    })
+    Ok(channel.of(&image, &path.display().to_string())?)
 }
 
 pub fn run(args: MatchArgs) -> anyhow::Result<()> {
@@ -119,8 +52,8 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             check_output_file(path, option)?;
         }
     }
-    let network = load_network(args.method, args.model.as_deref())?;
-    let cost = matching_cost(args.method, network.as_ref())?;
+    let network = args.method.network(args.model.as_deref())?;
+    let cost = args.method.cost(network.as_ref())?;
     let mut settings = if args.raw {
         MatchSettings::raw(range)
     } else if args.published {
@@ -139,23 +72,14 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         sgm.paths = if args.sgm_paths >= 8 { 8 } else { 4 };
     }
     if !args.raw {
-        settings.left_right = match args.left_right {
-            LeftRightChoice::Off => LeftRight::Off,
-            LeftRightChoice::Check => LeftRight::Check,
-            LeftRightChoice::Fill => LeftRight::CheckAndFill,
-        };
+        settings.left_right = args.left_right;
     }
     settings.subpixel &= !args.no_subpixel;
     settings.median &= !args.no_median;
     if args.no_bilateral {
         settings.bilateral = None;
     }
-    settings.contrast = match args.contrast {
-        ContrastChoice::Auto => Contrast::Auto,
-        ContrastChoice::Same => Contrast::Same,
-        ContrastChoice::Inverted => Contrast::Inverted,
-        ContrastChoice::Either => Contrast::Either,
-    };
+    settings.contrast = args.contrast;
     let bar = spinner(format!(
         "matching {}×{} with {} over disparities {range}",
         left.width,

@@ -38,13 +38,10 @@ pub fn run(command: Command) -> anyhow::Result<()> {
 pub fn optional_curve(
     reference: &str,
 ) -> anyhow::Result<Option<anaglyph_core::spectrum::ResponseCurve>> {
-    if reference.eq_ignore_ascii_case("none") {
-        return Ok(None);
-    }
-    Ok(Some(anaglyph_core::rig::resolve_curve(
+    Ok(anaglyph_core::rig::resolve_optional_curve(
         reference,
         std::path::Path::new("."),
-    )?))
+    )?)
 }
 
 /// Opens the output folder `out` before any work (see `OutputFolder::begin`): `force`

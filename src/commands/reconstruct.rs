@@ -2,20 +2,15 @@
 //! output layout of `anaglyph_core::reconstruct::write_light_field`, with a progress bar
 //! per stage.
 
-use super::match_pair::{load_network, matching_cost};
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
-use crate::cli::{
-    MatchingImageChoice, OutputChoice, PresetChoice, ReconstructArgs, RegistrationChoice,
-    SearchRangeArg, TuningArgs, ViewList, WarpKernelChoice,
-};
+use crate::cli::{ReconstructArgs, SearchRangeArg, TuningArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
-    Preset, Products, Stage,
+    Stage,
 };
 use anaglyph_core::refine::GuidedRefinement;
-use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::Rig;
 use anaglyph_core::solve::{ScenePriorSettings, SolveSettings};
 use anaglyph_core::stereo::MatchingCost;
@@ -57,8 +52,9 @@ fn stage_bar() -> ProgressBar {
 
 pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let network = load_network(args.registration.method, args.registration.model.as_deref())?;
-    let cost = matching_cost(args.registration.method, network.as_ref())?;
+    let method = args.registration.method;
+    let network = method.network(args.registration.model.as_deref())?;
+    let cost = method.cost(network.as_ref())?;
     let mut settings = pipeline_settings(&args, cost);
     settings.validate()?;
     let rig = load_rig(&args)?;
@@ -83,7 +79,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         args.calibration.as_deref(),
     )?;
     let options = OutputOptions {
-        products: products(args.output),
+        products: args.output,
         probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
         truth: args.truth.clone(),
         parameters: manifest_parameters(&args, &rig, &settings),
@@ -161,50 +157,27 @@ fn load_rig(args: &ReconstructArgs) -> anyhow::Result<Rig> {
 }
 
 /// The preset's settings with every option the user gave applied over them.
-/// The products `--output` asks for.
-fn products(choice: OutputChoice) -> Products {
-    match choice {
-        OutputChoice::Cube => Products::Cubes,
-        OutputChoice::Registered => Products::Registered,
-        OutputChoice::Both => Products::Both,
-    }
-}
-
 fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> PipelineSettings<'a> {
-    let preset = match args.preset {
-        PresetChoice::Default => Preset::Default,
-        PresetChoice::Fast => Preset::Fast,
-        PresetChoice::Paper => Preset::Paper,
-    };
     let tuning = &args.tuning;
-    let mut settings = PipelineSettings::with_preset(cost, preset);
-    settings.registration.mode = match args.registration.registration {
-        RegistrationChoice::MultiBaseline => RegistrationMode::MultiBaseline,
-        RegistrationChoice::Pairwise => RegistrationMode::Pairwise,
-    };
+    let mut settings = PipelineSettings::with_preset(cost, args.preset);
+    settings.registration.mode = args.registration.registration;
     if let SearchRangeArg::Fixed(range) = args.search_range() {
         settings.registration.range = range;
         settings.automatic_search_range = false;
     }
-    settings.keep_registered = products(args.output).registered();
+    settings.keep_registered = args.output.registered();
     settings.white_reflectance = args.white_reflectance;
     settings.saturation_level = args.saturation;
-    settings.demux.solver = tuning.solver.into();
+    settings.demux.solver = tuning.solver;
     settings.views = match &args.views {
         ViewList::All => None,
         ViewList::Some(list) => Some(list.clone()),
     };
     if let Some(choice) = tuning.matching_image {
-        settings.matching_image = match choice {
-            MatchingImageChoice::CommonSignals => MatchingImage::CommonSignals,
-            MatchingImageChoice::Luminance => MatchingImage::Luminance,
-        };
+        settings.matching_image = choice;
     }
     if let Some(choice) = tuning.warp_kernel {
-        settings.warp_kernel = match choice {
-            WarpKernelChoice::Lanczos3 => WarpKernel::Lanczos3,
-            WarpKernelChoice::Bilinear => WarpKernel::Bilinear,
-        };
+        settings.warp_kernel = choice;
     }
     settings.solve = solve_settings(tuning, settings.solve);
     settings
@@ -273,8 +246,8 @@ fn manifest_parameters(
         "white": path(&args.white),
         "calibration": path(&args.calibration),
         "illuminant": args.illuminant,
-        "preset": format!("{:?}", args.preset).to_lowercase(),
-        "output": products(args.output),
+        "preset": args.preset.to_string(),
+        "output": args.output,
         "registration": if settings.given_disparities.is_some() {
             "true disparities".to_string()
         } else {
@@ -282,7 +255,7 @@ fn manifest_parameters(
         },
         "matching_image": settings.matching_image,
         "true_disparity": path(&args.true_disparity),
-        "method": format!("{:?}", args.registration.method),
+        "method": args.registration.method.to_string(),
         "model": path(&args.registration.model),
         "disp_range": match args.search_range() {
             SearchRangeArg::Fixed(range) => serde_json::json!(range),
@@ -350,6 +323,7 @@ mod tests {
     use super::*;
     use crate::cli::{Args, Command};
     use anaglyph_core::disparity::DisparityRange;
+    use anaglyph_core::register::WarpKernel;
     use clap::Parser;
 
     fn settings_of(extra: &[&str]) -> PipelineSettings<'static> {

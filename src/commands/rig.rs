@@ -5,7 +5,7 @@ use super::optional_curve;
 use super::select_filters::{load_candidates, print_report, run_selection, SelectionInputs};
 use crate::cli::{RigCommand, RigInitArgs, RigShowArgs};
 use anaglyph_core::capture::CameraNoise;
-use anaglyph_core::filters::{SelectionCriterion, SelectionOptions};
+use anaglyph_core::filters::SelectionOptions;
 use anaglyph_core::io::write_npy_f64;
 use anaglyph_core::rig::{
     plot_effective_responses, resolve_curve, EffectiveResponses, OutOfBand, Rig, SensingMatrix,
@@ -32,7 +32,7 @@ fn init(args: RigInitArgs) -> anyhow::Result<()> {
     };
     let options = SelectionOptions {
         count: 8,
-        criterion: SelectionCriterion::from(args.criterion),
+        criterion: args.criterion,
         noise: CameraNoise::default(),
         lambda: 0.01,
         keep: 3,

@@ -6,11 +6,11 @@ use crate::cli::SelectFiltersArgs;
 use crate::progress::spinner;
 use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::filters::{
-    select_filters, SelectionCamera, SelectionCriterion, SelectionOptions, SelectionReport,
+    builtin_candidates, select_for_sensor, SelectionOptions, SelectionReport,
 };
+use anaglyph_core::io::write_atomically;
 use anaglyph_core::rig::{resolve_curve, OutOfBand};
-use anaglyph_core::spectrum::{Interpolation, ResponseCurve, SpectralShape};
-use anaglyph_core::{builtin, io::write_atomically};
+use anaglyph_core::spectrum::ResponseCurve;
 use anyhow::{bail, Context};
 use std::path::Path;
 use std::time::Instant;
@@ -25,10 +25,7 @@ pub struct SelectionInputs {
 /// Loads every `*.csv` in `dir`, or the built-in gel library.
 pub fn load_candidates(dir: Option<&Path>) -> anyhow::Result<Vec<ResponseCurve>> {
     let Some(dir) = dir else {
-        return builtin::filter_names()
-            .into_iter()
-            .map(|n| Ok(builtin::filter(n)?))
-            .collect();
+        return Ok(builtin_candidates()?);
     };
     let mut paths: Vec<_> = std::fs::read_dir(dir)
         .with_context(|| format!("reading candidate folder {}", dir.display()))?
@@ -51,7 +48,6 @@ pub fn run_selection(
     options: &SelectionOptions,
     out_of_band: OutOfBand,
 ) -> anyhow::Result<(SelectionReport, f64)> {
-    let prior = builtin::reflectances("tcs_cfi2017_99")?;
     let bar = spinner(format!(
         "searching {} of {} filters by {:?}",
         options.count,
@@ -59,17 +55,12 @@ pub fn run_selection(
         options.criterion
     ));
     let start = Instant::now();
-    let report = select_filters(
+    let report = select_for_sensor(
         &inputs.candidates,
-        &SelectionCamera {
-            sensor: &inputs.sensor,
-            illuminant: inputs.illuminant.as_ref(),
-            sensor_interpolation: Interpolation::CubicSpline,
-            reported: SpectralShape::PAPER_BANDS,
-            out_of_band,
-        },
-        &prior,
+        &inputs.sensor,
+        inputs.illuminant.as_ref(),
         options,
+        out_of_band,
     )?;
     bar.finish_and_clear();
     Ok((report, start.elapsed().as_secs_f64()))
@@ -121,7 +112,7 @@ pub fn run(args: SelectFiltersArgs) -> anyhow::Result<()> {
     };
     let options = SelectionOptions {
         count: args.count,
-        criterion: SelectionCriterion::from(args.criterion),
+        criterion: args.criterion,
         noise: CameraNoise {
             full_well_electrons: args.full_well,
             read_noise_electrons: args.read_noise,
@@ -131,7 +122,7 @@ pub fn run(args: SelectFiltersArgs) -> anyhow::Result<()> {
         keep: args.keep,
         exhaustive_limit: args.exhaustive_limit,
     };
-    let (report, seconds) = run_selection(&inputs, &options, args.out_of_band.into())?;
+    let (report, seconds) = run_selection(&inputs, &options, args.out_of_band)?;
     print_report(&report, seconds);
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&report)?;

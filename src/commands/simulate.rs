@@ -4,38 +4,13 @@ use super::{begin_output, format_seconds, rig_inputs};
 use crate::cli::SimulateArgs;
 use crate::progress::spinner;
 use anaglyph_core::rig::Rig;
-use anaglyph_core::scene::{random_scene, MetamerVariation, Scene, SceneFile, PRESETS};
+use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile};
 use anaglyph_core::simulate::{
     write_simulation, DarkSignal, PoseJitter, Simulation, SimulationSettings,
 };
 use anyhow::Context;
 use std::path::Path;
 use std::time::Instant;
-
-/// The scene named on the command line and the folder its relative paths start from.
-fn load_scene(name: &str, seed: u64) -> anyhow::Result<(SceneFile, std::path::PathBuf)> {
-    if name == "random" {
-        return Ok((random_scene(seed), ".".into()));
-    }
-    if PRESETS.iter().any(|(k, _)| *k == name) {
-        return Ok((SceneFile::preset(name)?, ".".into()));
-    }
-    let path = Path::new(name);
-    if !path.is_file() {
-        anyhow::bail!(
-            "--scene {name}: not a preset ({}), not 'random', and no such file",
-            PRESETS
-                .iter()
-                .map(|(k, _)| *k)
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    Ok((
-        SceneFile::load(path)?,
-        path.parent().map(Path::to_path_buf).unwrap_or_default(),
-    ))
-}
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let rig_path = Path::new(&args.rig);
@@ -45,7 +20,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         Rig::preset(&args.rig)
             .with_context(|| format!("--rig {}: no such file, and not a preset", args.rig))?
     };
-    let (file, base) = load_scene(&args.scene, args.seed)?;
+    let (file, base) = SceneFile::named(&args.scene, args.seed)
+        .with_context(|| format!("--scene {}", args.scene))?;
     let scene = Scene::resolve(file.clone(), &base)?;
     let mut inputs = rig_inputs(&rig);
     if rig_path.is_file() {

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 /// what was expected (or what is available), so that a caller can match the cause and a
 /// user can fix the input without reading the code.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum Error {
     #[error("{path}: {source}")]
     Io {
@@ -130,7 +131,54 @@ pub enum Error {
 
     #[error("{op} did not converge in {iterations} iterations")]
     NoConvergence { op: String, iterations: usize },
+
+    #[error("cancelled before {stage}")]
+    Cancelled { stage: String },
 }
+
+/// The broad class of a cause, for a front end that maps causes onto its own families of
+/// errors (the Python package's exceptions derive from `ValueError`, `FileNotFoundError`,
+/// `OSError`, `MemoryError` or `ArithmeticError` by it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorClass {
+    /// An input (file contents, argument, setting) has a wrong value.
+    InvalidValue,
+    /// A file that was named does not exist.
+    MissingFile,
+    /// Reading or writing failed.
+    Io,
+    /// A size over a limit (memory, pixels, file size).
+    Limit,
+    /// A numerical method failed on the data.
+    Numerical,
+    /// The caller asked the run to stop.
+    Cancelled,
+}
+
+/// Every [`Error::kind`] with its class, in the enum's order.
+pub const ERROR_KINDS: [(&str, ErrorClass); 21] = [
+    ("Io", ErrorClass::Io),
+    ("Parse", ErrorClass::InvalidValue),
+    ("BadField", ErrorClass::InvalidValue),
+    ("UnsupportedFormat", ErrorClass::InvalidValue),
+    ("FileSize", ErrorClass::InvalidValue),
+    ("MissingFile", ErrorClass::MissingFile),
+    ("NonFinite", ErrorClass::InvalidValue),
+    ("NotFound", ErrorClass::InvalidValue),
+    ("Mismatch", ErrorClass::InvalidValue),
+    ("Unusable", ErrorClass::InvalidValue),
+    ("Decode", ErrorClass::InvalidValue),
+    ("Output", ErrorClass::Io),
+    ("CurveNotCovering", ErrorClass::InvalidValue),
+    ("Shape", ErrorClass::InvalidValue),
+    ("TooLarge", ErrorClass::Limit),
+    ("SingularNormalMatrix", ErrorClass::Numerical),
+    ("OutOfRange", ErrorClass::InvalidValue),
+    ("StageDependency", ErrorClass::InvalidValue),
+    ("LinearAlgebra", ErrorClass::Numerical),
+    ("NoConvergence", ErrorClass::Numerical),
+    ("Cancelled", ErrorClass::Cancelled),
+];
 
 /// Result alias of the core library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
@@ -160,7 +208,23 @@ impl Error {
             Error::StageDependency { .. } => "StageDependency",
             Error::LinearAlgebra { .. } => "LinearAlgebra",
             Error::NoConvergence { .. } => "NoConvergence",
+            Error::Cancelled { .. } => "Cancelled",
         }
+    }
+
+    /// The cause's class ([`ERROR_KINDS`]); an [`Error::Io`] for a file that does not exist
+    /// is [`ErrorClass::MissingFile`].
+    pub fn class(&self) -> ErrorClass {
+        if let Error::Io { source, .. } = self {
+            if source.kind() == std::io::ErrorKind::NotFound {
+                return ErrorClass::MissingFile;
+            }
+        }
+        let kind = self.kind();
+        ERROR_KINDS
+            .iter()
+            .find(|(k, _)| *k == kind)
+            .map_or(ErrorClass::InvalidValue, |(_, class)| *class)
     }
 
     pub(crate) fn decode(file: impl Into<PathBuf>, message: impl ToString) -> Self {
@@ -196,7 +260,8 @@ impl Error {
         }
     }
 
-    pub(crate) fn mismatch(
+    /// A [`Error::Mismatch`]: `what` was `found` where `expected` was expected.
+    pub fn mismatch(
         what: impl Into<String>,
         found: impl Into<String>,
         expected: impl Into<String>,
@@ -226,6 +291,130 @@ impl Error {
         Error::Io {
             path: path.into(),
             source,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One error of every variant: `variant_index` matches exhaustively, so a new variant
+    /// does not compile until it is added here and to [`ERROR_KINDS`].
+    fn one_of_each() -> Vec<Error> {
+        let s = || String::from("x");
+        let p = || PathBuf::from("x");
+        vec![
+            Error::io(p(), std::io::Error::other("x")),
+            Error::Parse {
+                context: s(),
+                line: 1,
+                message: s(),
+            },
+            Error::bad_field(p(), "x", "x", "x"),
+            Error::UnsupportedFormat {
+                file: p(),
+                what: s(),
+                found: s(),
+                supported: s(),
+            },
+            Error::FileSize {
+                path: p(),
+                found: 1,
+                expected: 2,
+            },
+            Error::MissingFile {
+                path: p(),
+                what: s(),
+            },
+            Error::NonFinite {
+                what: s(),
+                value: f64::NAN,
+            },
+            Error::NotFound {
+                what: s(),
+                name: s(),
+                available: s(),
+            },
+            Error::mismatch("x", "x", "x"),
+            Error::unusable("x", "x"),
+            Error::decode(p(), "x"),
+            Error::output("x", "x"),
+            Error::CurveNotCovering {
+                name: s(),
+                have_start: 0.0,
+                have_end: 1.0,
+                need_start: 0.0,
+                need_end: 2.0,
+            },
+            Error::Shape {
+                op: s(),
+                got: vec![1],
+                expected: vec![2],
+            },
+            Error::TooLarge {
+                op: s(),
+                what: s(),
+                size: 2,
+                limit: 1,
+            },
+            Error::SingularNormalMatrix {
+                lambda: 0.0,
+                rows: 1,
+                cols: 2,
+            },
+            Error::out_of_range("x", 1.0, "x"),
+            Error::StageDependency {
+                stage: "x",
+                needs: "x",
+                why: "x",
+            },
+            Error::LinearAlgebra {
+                op: s(),
+                message: s(),
+            },
+            Error::NoConvergence {
+                op: s(),
+                iterations: 1,
+            },
+            Error::Cancelled { stage: s() },
+        ]
+    }
+
+    fn variant_index(e: &Error) -> usize {
+        match e {
+            Error::Io { .. } => 0,
+            Error::Parse { .. } => 1,
+            Error::BadField { .. } => 2,
+            Error::UnsupportedFormat { .. } => 3,
+            Error::FileSize { .. } => 4,
+            Error::MissingFile { .. } => 5,
+            Error::NonFinite { .. } => 6,
+            Error::NotFound { .. } => 7,
+            Error::Mismatch { .. } => 8,
+            Error::Unusable { .. } => 9,
+            Error::Decode { .. } => 10,
+            Error::Output { .. } => 11,
+            Error::CurveNotCovering { .. } => 12,
+            Error::Shape { .. } => 13,
+            Error::TooLarge { .. } => 14,
+            Error::SingularNormalMatrix { .. } => 15,
+            Error::OutOfRange { .. } => 16,
+            Error::StageDependency { .. } => 17,
+            Error::LinearAlgebra { .. } => 18,
+            Error::NoConvergence { .. } => 19,
+            Error::Cancelled { .. } => 20,
+        }
+    }
+
+    #[test]
+    fn the_kind_table_lists_every_variant_in_order() {
+        let errors = one_of_each();
+        assert_eq!(errors.len(), ERROR_KINDS.len());
+        for (i, e) in errors.iter().enumerate() {
+            assert_eq!(variant_index(e), i, "{e}");
+            assert_eq!(e.kind(), ERROR_KINDS[i].0);
+            assert_eq!(e.class(), ERROR_KINDS[i].1);
         }
     }
 }

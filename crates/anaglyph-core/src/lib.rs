@@ -37,6 +37,7 @@
 
 pub mod builtin;
 pub mod capture;
+pub mod choice;
 mod cpu;
 pub mod demux;
 pub mod disparity;
@@ -60,4 +61,4 @@ pub mod solve;
 pub mod spectrum;
 pub mod stereo;
 
-pub use error::{Error, Result};
+pub use error::{Error, ErrorClass, Result, ERROR_KINDS};

@@ -61,6 +61,14 @@ pub enum Solver {
     Reference,
 }
 
+crate::choice::named_choices!(Solver, "solver" {
+    Exact = "exact" "Batched closed form + exact active set (default, fastest).",
+    ProjectedGradient = "gradient-descent" "Accelerated projected gradient descent.",
+    ConjugateGradient = "conjugate-gradient" "Conjugate gradient inside the active-set loop.",
+    Lsqr = "lsqr" "LSQR inside the active-set loop.",
+    Reference = "reference" "Plain dense per-pixel reference.",
+});
+
 /// Solver settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemuxOptions {

@@ -13,6 +13,7 @@ pub use calibration::{calibrate_filter, FilterCalibration};
 pub use gel_model::{gel_library, GelFilter, GelShape, GEL_LIBRARY_SHAPE};
 pub use nominal::{gaussian_filter, nominal_centre, GAUSSIAN_PREFIX, NOMINAL_RANGE_NM};
 pub use selection::{
-    select_filters, NoiseModel, SelectionCamera, SelectionCriterion, SelectionOptions,
-    SelectionReport, SubsetScore, EXHAUSTIVE_LIMIT,
+    builtin_candidates, select_filters, select_for_sensor, NoiseModel, SelectionCamera,
+    SelectionCriterion, SelectionOptions, SelectionReport, SubsetScore, EXHAUSTIVE_LIMIT,
+    SELECTION_PRIOR,
 };

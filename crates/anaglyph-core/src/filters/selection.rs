@@ -32,6 +32,11 @@ pub enum SelectionCriterion {
     Noise,
 }
 
+crate::choice::named_choices!(SelectionCriterion, "selection criterion" {
+    Condition = "condition" "Smallest cond(C), as the paper.",
+    Noise = "noise" "Smallest expected reconstruction error under sensor noise.",
+});
+
 /// The noise model of the `Noise` criterion (per-measurement variance in C's units).
 pub type NoiseModel = CameraNoise;
 
@@ -187,6 +192,62 @@ pub struct SelectionCamera<'a> {
     /// The reconstruction bands.
     pub reported: SpectralShape,
     pub out_of_band: OutOfBand,
+}
+
+/// The reflectance prior of the noise criterion: the 99 test samples of CIE 224:2017's
+/// colour-fidelity index (built in).
+pub const SELECTION_PRIOR: &str = "tcs_cfi2017_99";
+
+/// The built-in modelled gel library, the default candidates.
+pub fn builtin_candidates() -> Result<Vec<ResponseCurve>> {
+    crate::builtin::filter_names()
+        .into_iter()
+        .map(crate::builtin::filter)
+        .collect()
+}
+
+/// [`select_filters`] for `sensor` (under `illuminant`) with the paper's reconstruction
+/// bands, the sensor resampled by cubic spline and the [`SELECTION_PRIOR`].
+pub fn select_for_sensor(
+    candidates: &[ResponseCurve],
+    sensor: &ResponseCurve,
+    illuminant: Option<&ResponseCurve>,
+    options: &SelectionOptions,
+    out_of_band: OutOfBand,
+) -> Result<SelectionReport> {
+    if !(options.lambda.is_finite() && options.lambda >= 0.0) {
+        return Err(Error::out_of_range(
+            "lambda",
+            options.lambda,
+            "finite and >= 0",
+        ));
+    }
+    let noise = &options.noise;
+    if !(noise.full_well_electrons > 0.0 && noise.full_well_electrons.is_finite()) {
+        let value = noise.full_well_electrons;
+        return Err(Error::out_of_range(
+            "full well (e-)",
+            value,
+            "positive and finite",
+        ));
+    }
+    if !(noise.read_noise_electrons >= 0.0 && noise.read_noise_electrons.is_finite()) {
+        let value = noise.read_noise_electrons;
+        return Err(Error::out_of_range(
+            "read noise (e-)",
+            value,
+            "finite and >= 0",
+        ));
+    }
+    let prior = crate::builtin::reflectances(SELECTION_PRIOR)?;
+    let camera = SelectionCamera {
+        sensor,
+        illuminant,
+        sensor_interpolation: Interpolation::CubicSpline,
+        reported: SpectralShape::PAPER_BANDS,
+        out_of_band,
+    };
+    select_filters(candidates, &camera, &prior, options)
 }
 
 /// Chooses `options.count` of `candidates` for `camera`. `prior` is a set of reflectances

@@ -134,36 +134,30 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
     use image::DynamicImage as D;
     let (width, height) = (decoded.width() as usize, decoded.height() as usize);
     let (channels, data): (usize, Vec<f32>) = match decoded {
-        D::ImageLuma8(i) => (1, i.into_raw().iter().map(|&v| v as f32 / 255.0).collect()),
-        D::ImageLuma16(i) => (
-            1,
-            i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
-        ),
+        D::ImageLuma8(i) => (1, i.into_raw().into_iter().map(from_u8_sample).collect()),
+        D::ImageLuma16(i) => (1, i.into_raw().into_iter().map(from_u16_sample).collect()),
         D::ImageLumaA8(i) => (
             1,
             i.into_raw()
                 .chunks_exact(2)
-                .map(|p| p[0] as f32 / 255.0)
+                .map(|p| from_u8_sample(p[0]))
                 .collect(),
         ),
         D::ImageLumaA16(i) => (
             1,
             i.into_raw()
                 .chunks_exact(2)
-                .map(|p| p[0] as f32 / 65535.0)
+                .map(|p| from_u16_sample(p[0]))
                 .collect(),
         ),
-        D::ImageRgb8(i) => (3, i.into_raw().iter().map(|&v| v as f32 / 255.0).collect()),
-        D::ImageRgb16(i) => (
-            3,
-            i.into_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
-        ),
+        D::ImageRgb8(i) => (3, i.into_raw().into_iter().map(from_u8_sample).collect()),
+        D::ImageRgb16(i) => (3, i.into_raw().into_iter().map(from_u16_sample).collect()),
         D::ImageRgba8(i) => (
             3,
             i.into_raw()
                 .chunks_exact(4)
                 .flat_map(|p| [p[0], p[1], p[2]])
-                .map(|v| v as f32 / 255.0)
+                .map(from_u8_sample)
                 .collect(),
         ),
         D::ImageRgba16(i) => (
@@ -171,7 +165,7 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
             i.into_raw()
                 .chunks_exact(4)
                 .flat_map(|p| [p[0], p[1], p[2]])
-                .map(|v| v as f32 / 65535.0)
+                .map(from_u16_sample)
                 .collect(),
         ),
         other => {
@@ -189,6 +183,25 @@ pub fn read_linear_image(path: &Path) -> Result<LinearImage> {
         channels,
         data,
     })
+}
+
+/// A linear value in [0, 1] as a 16-bit sample (clipped, rounded): what a 16-bit capture
+/// file stores.
+#[inline]
+pub fn to_u16_sample(v: f32) -> u16 {
+    (v.clamp(0.0, 1.0) * 65535.0).round() as u16
+}
+
+/// A 16-bit sample as a linear value in [0, 1].
+#[inline]
+pub fn from_u16_sample(v: u16) -> f32 {
+    v as f32 / 65535.0
+}
+
+/// An 8-bit sample as a linear value in [0, 1].
+#[inline]
+pub fn from_u8_sample(v: u8) -> f32 {
+    v as f32 / 255.0
 }
 
 /// Writes a 16-bit grey or RGB PNG from values in [0, 1] (clipped, rounded).
@@ -214,7 +227,7 @@ pub fn write_png16(path: &Path, image: &LinearImage) -> Result<()> {
     let bytes: Vec<u8> = image
         .data
         .iter()
-        .flat_map(|&v| ((v.clamp(0.0, 1.0) * 65535.0).round() as u16).to_ne_bytes())
+        .flat_map(|&v| to_u16_sample(v).to_ne_bytes())
         .collect();
     write_atomically(path, |w| {
         use image::ImageEncoder;

@@ -78,6 +78,11 @@ pub enum PlaneModel {
     Affine,
 }
 
+crate::choice::named_choices!(PlaneModel, "plane model" {
+    Homography = "homography" "8 degrees of freedom: any plane, any camera rotation.",
+    Affine = "affine" "6 degrees of freedom: cameras parallel enough that perspective is negligible.",
+});
+
 /// One camera's checkerboard capture.
 #[derive(Debug, Clone)]
 pub struct BoardCapture {

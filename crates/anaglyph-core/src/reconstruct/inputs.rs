@@ -250,6 +250,18 @@ impl ArrayCaptures {
         Self::from_cameras(cameras)
     }
 
+    /// Every camera's calibration from a folder of `<camera>.json|yml|yaml|npy` files (what
+    /// `calibrate` writes), in rig order.
+    pub fn load_calibrations(rig: &Rig, dir: &Path) -> Result<Vec<Calibration>> {
+        rig.cameras
+            .iter()
+            .map(|cam| {
+                let path = find_in(dir, &cam.name, &CALIBRATION_EXTENSIONS, "calibration")?;
+                Calibration::load(&path)
+            })
+            .collect()
+    }
+
     /// Checks that all pictures share one size.
     pub fn from_cameras(cameras: Vec<CameraCapture>) -> Result<Self> {
         let Some(first) = cameras.first() else {

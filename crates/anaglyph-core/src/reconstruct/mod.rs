@@ -170,9 +170,12 @@ pub fn reconstruct(
     let plan = SolvePlan::new(&settings.solve)?;
     let mut log = RunLog::default();
 
+    settings.check_cancelled("rectification")?;
     let rectified = rectify_array(rig, captures, settings.saturation_level, &mut log, progress)?;
     let captures = rectified.as_ref().map_or(captures, |r| &r.captures);
+    settings.check_cancelled("calibration")?;
     let calibrated = calibrate_array(rig, captures, settings, &mut log)?;
+    settings.check_cancelled("registration")?;
     let registered = register_array(rig, captures, &calibrated, settings, &mut log, progress)?;
     let pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
     let views = pass.run_all(&requested, &mut log, progress)?;

@@ -44,6 +44,12 @@ pub enum Products {
     Both,
 }
 
+crate::choice::named_choices!(Products, "output" {
+    Cubes = "cube" "A reflectance cube per view.",
+    Registered = "registered" "A registered stack per view: every camera's normalised capture warped into it.",
+    Both = "both" "Both the cube and the registered stack.",
+});
+
 impl Products {
     pub fn cubes(self) -> bool {
         self != Products::Registered
@@ -200,8 +206,28 @@ pub fn write_light_field(
             write_probes(dir, &name, field, view, options)?;
         }
     }
-    let manifest = manifest(field, options, clock.elapsed().as_secs_f64());
+    let manifest = manifest(field, options, Some(clock.elapsed().as_secs_f64()));
     folder.write_manifest(&manifest)
+}
+
+impl LightField {
+    /// What `manifest.json` records of the run (less the file list and run id), as JSON:
+    /// `parameters` as given, the calibration, rectification, search range, solve stages,
+    /// per-view summaries, timings (with `loading_seconds` first) and warnings. For a
+    /// caller that keeps the light field in memory (the Python package).
+    pub fn manifest(
+        &self,
+        parameters: serde_json::Value,
+        loading_seconds: f64,
+    ) -> Result<serde_json::Value> {
+        let options = OutputOptions {
+            parameters,
+            loading_seconds,
+            ..OutputOptions::default()
+        };
+        serde_json::to_value(manifest(self, &options, None))
+            .map_err(|e| Error::output("manifest", e))
+    }
 }
 
 /// `views/NAME.hdr` and `.img`: the view's reflectance cube.
@@ -290,14 +316,16 @@ fn write_probes(
 }
 
 /// What `manifest.json` says besides the run id and the files, which the folder adds.
+/// The manifest of `field`; `writing_seconds` is recorded as a stage when the run wrote
+/// files.
 fn manifest<'a>(
     field: &'a LightField,
     options: &'a OutputOptions,
-    writing_seconds: f64,
+    writing_seconds: Option<f64>,
 ) -> Manifest<'a> {
     let mut timings = vec![("loading".to_string(), options.loading_seconds)];
     timings.extend(field.timings.iter().cloned());
-    timings.push(("writing".to_string(), writing_seconds));
+    timings.extend(writing_seconds.map(|s| ("writing".to_string(), s)));
     Manifest {
         generator: format!("anaglyph {}", env!("CARGO_PKG_VERSION")),
         parameters: &options.parameters,

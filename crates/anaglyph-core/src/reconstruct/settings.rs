@@ -8,6 +8,7 @@ use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::MatchingCost;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// The default search range, per column step, when none is given or estimated.
 pub const DEFAULT_MAX_DISP: i32 = 64;
@@ -37,6 +38,12 @@ pub enum Preset {
     /// cameras' maps deciding visibility; no prior, no refinement.
     Paper,
 }
+
+crate::choice::named_choices!(Preset, "preset" {
+    Default = "default" "Every stage on, with the measured defaults.",
+    Fast = "fast" "The default with a lighter scene prior.",
+    Paper = "paper" "The paper's pipeline after registration: Eq. 6 on bilinearly warped measurements; no prior, no refinement.",
+});
 
 impl Preset {
     /// The stages of each view's solve.
@@ -99,6 +106,10 @@ pub struct PipelineSettings<'a> {
     /// the view, NaN where the camera does not see the point
     /// ([`super::ReconstructedView::registered`]).
     pub keep_registered: bool,
+    /// Set by the caller (another thread, or the progress callback) to stop the run at the
+    /// next stage boundary (before rectification, calibration, registration and each
+    /// view) with [`Error::Cancelled`]; nothing is returned half done.
+    pub cancel: Option<&'a AtomicBool>,
 }
 
 impl<'a> PipelineSettings<'a> {
@@ -129,6 +140,18 @@ impl<'a> PipelineSettings<'a> {
             solve: preset.solve(),
             views: None,
             keep_registered: false,
+            cancel: None,
+        }
+    }
+
+    /// [`Error::Cancelled`] when the caller asked the run to stop; `stage` names what
+    /// would have run next.
+    pub fn check_cancelled(&self, stage: &str) -> Result<()> {
+        match self.cancel {
+            Some(flag) if flag.load(Ordering::Relaxed) => Err(Error::Cancelled {
+                stage: stage.to_string(),
+            }),
+            _ => Ok(()),
         }
     }
 

@@ -64,6 +64,8 @@ impl<'a> ViewPass<'a> {
         let mut seconds = vec![0.0; names.len() + 1];
         let mut views = Vec::with_capacity(requested.len());
         for (k, &v) in requested.iter().enumerate() {
+            self.settings
+                .check_cancelled(&format!("view {}", self.rig.cameras[v].name))?;
             views.push(self.run(v, &mut seconds, &mut log.warnings)?);
             progress(Stage::Views, k + 1, requested.len());
         }

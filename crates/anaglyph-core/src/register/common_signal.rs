@@ -51,6 +51,11 @@ pub enum MatchingImage {
     CommonSignals,
 }
 
+crate::choice::named_choices!(MatchingImage, "matching image" {
+    CommonSignals = "common-signals" "The leading common signals of the array: each camera's channels mixed into what every camera can estimate, so that filters do not invert contrast between views.",
+    Luminance = "luminance" "Each camera's luminance (the paper's input).",
+});
+
 /// Per camera, the weights of its channels in the common signal, and how well each
 /// camera's estimate follows the common signal under the prior.
 #[derive(Debug, Clone, Serialize)]

@@ -68,6 +68,11 @@ pub enum RegistrationMode {
     MultiBaseline,
 }
 
+crate::choice::named_choices!(RegistrationMode, "registration" {
+    MultiBaseline = "multi-baseline" "Each view against all others at once along the array geometry (learned cost).",
+    Pairwise = "pairwise" "Row and column neighbours matched pairwise, fused.",
+});
+
 /// The mode `anaglyph reconstruct` and the demo use unless told otherwise (measured in
 /// `examples/light_field_quality.rs`; see docs/reconstruction.md).
 pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseline;

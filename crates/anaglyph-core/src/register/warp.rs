@@ -100,6 +100,11 @@ pub enum WarpKernel {
     Lanczos3,
 }
 
+crate::choice::named_choices!(WarpKernel, "warp kernel" {
+    Lanczos3 = "lanczos3" "Lanczos-3 (6x6 taps) where the support lies on one surface, bilinear elsewhere: keeps pixel-scale texture (the default; best with refinement).",
+    Bilinear = "bilinear" "Bilinear: averages sensor noise; slightly better without the scene prior and refinement.",
+});
+
 /// A view's warped measurements.
 #[derive(Debug, Clone)]
 pub struct Gathered {

@@ -230,6 +230,14 @@ pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
     }
 }
 
+/// [`resolve_curve`], with `none` (any case) for no curve (an illuminant left out of C).
+pub fn resolve_optional_curve(reference: &str, base: &Path) -> Result<Option<ResponseCurve>> {
+    if reference.eq_ignore_ascii_case("none") {
+        return Ok(None);
+    }
+    resolve_curve(reference, base).map(Some)
+}
+
 /// The CSV file a curve reference names (relative to `base`), None for `builtin:` and
 /// `gaussian:` references.
 pub fn curve_file(reference: &str, base: &Path) -> Option<PathBuf> {

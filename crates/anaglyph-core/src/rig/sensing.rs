@@ -41,6 +41,12 @@ pub enum OutOfBand {
     Ignore,
 }
 
+crate::choice::named_choices!(OutOfBand, "out-of-band model" {
+    Extend = "extend" "Extra unknowns at the same step over the curves' whole support (default).",
+    Clamp = "clamp" "Edge bands absorb the tails (spectrum constant beyond the edge bands).",
+    Ignore = "ignore" "Eq. 2 literally: light outside the band edges is ignored (for comparison only).",
+});
+
 /// Effective responses of every camera channel on a fine grid.
 #[derive(Debug, Clone)]
 pub struct EffectiveResponses {

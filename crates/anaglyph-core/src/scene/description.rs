@@ -31,7 +31,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Most objects in one scene.
@@ -176,6 +176,32 @@ impl SceneFile {
                         .join(", "),
                 })?;
         Self::from_toml_str(text, &format!("preset '{name}'"))
+    }
+
+    /// The scene a user names: a preset ([`PRESETS`]), `random` (from `seed`), or a scene
+    /// file; with the folder its relative paths start from.
+    pub fn named(name: &str, seed: u64) -> Result<(Self, PathBuf)> {
+        if name == "random" {
+            return Ok((random_scene(seed), ".".into()));
+        }
+        if PRESETS.iter().any(|(k, _)| *k == name) {
+            return Ok((Self::preset(name)?, ".".into()));
+        }
+        let path = Path::new(name);
+        if !path.is_file() {
+            return Err(Error::NotFound {
+                what: "scene preset or file".into(),
+                name: name.to_string(),
+                available: PRESETS
+                    .iter()
+                    .map(|(k, _)| *k)
+                    .chain(["random"])
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            });
+        }
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Ok((Self::load(path)?, base))
     }
 
     /// Reads a scene file.

@@ -31,6 +31,13 @@ pub enum Contrast {
     Either,
 }
 
+crate::choice::named_choices!(Contrast, "contrast" {
+    Auto = "auto" "Vote on the sign of the windows' correlations and negate the right image when the pair inverts (red against cyan filters).",
+    Same = "same" "The right image as it is.",
+    Inverted = "inverted" "The right image negated: the pair is known to invert.",
+    Either = "either" "Either sign at every pixel: the lower cost of the right image as it is or negated (scenes that invert only in part); one more network pass.",
+});
+
 /// The vote of [`estimate_contrast`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ContrastEstimate {

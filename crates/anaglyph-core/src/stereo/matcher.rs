@@ -52,6 +52,12 @@ pub enum LeftRight {
     CheckAndFill,
 }
 
+crate::choice::named_choices!(LeftRight, "left-right stage" {
+    Off = "off" "",
+    Check = "check" "Inconsistent pixels become invalid.",
+    CheckAndFill = "fill" "Inconsistent pixels are filled (occlusions from the background side, mismatches by a 16-direction median).",
+});
+
 /// Every stage's settings; `None`/`Off`/`false` switches a stage off.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MatchSettings {

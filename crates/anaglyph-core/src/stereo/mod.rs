@@ -14,6 +14,7 @@ mod cross_aggregation;
 mod disparity_filters;
 mod learned;
 mod matcher;
+mod method;
 mod mutual_information;
 mod network;
 mod refine;
@@ -35,6 +36,7 @@ pub use matcher::{
     match_pair, match_vertical, transpose, unit_range, LeftRight, MatchOutput, MatchSettings,
     MatchingCost,
 };
+pub use method::{GreyChannel, MatchMethod, MUTUAL_INFORMATION_ITERATIONS};
 pub use mutual_information::{mutual_information_cost_volume, mutual_information_table, BINS};
 pub use network::{ConvLayer, DenseLayer, MatchingNetwork, DEFAULT_FAST_WEIGHTS};
 pub use refine::{

@@ -1,0 +1,312 @@
+"""The pipeline's calls with Python conveniences around the compiled core: result objects,
+tqdm progress bars, ``logging`` for warnings, and ``xarray`` export."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Union
+
+import numpy as np
+
+from . import _core
+from ._core import Rig
+
+if TYPE_CHECKING:  # pragma: no cover
+    import xarray
+
+logger = logging.getLogger("anaglyph")
+
+PathLike = Union[str, "os.PathLike[str]"]
+Progress = Callable[[str, int, int], None]
+
+
+def _rig(rig: Rig | str) -> Rig:
+    """A Rig, a preset name or a rig file path as a Rig."""
+    if isinstance(rig, Rig):
+        return rig
+    if isinstance(rig, (str, os.PathLike)):
+        if os.path.isfile(rig):
+            return Rig.load(rig)
+        return Rig.preset(str(rig))
+    raise TypeError(f"rig: expected an anaglyph.Rig, a preset name or a rig file, got {type(rig).__name__}")
+
+
+def _disparity_range(disp_range: Any, what: str = "disp_range") -> tuple[int, int]:
+    """``(min, max)`` from a pair or a count of disparities (``N`` is ``(0, N)``)."""
+    if isinstance(disp_range, (int, np.integer)) and not isinstance(disp_range, bool):
+        return 0, int(disp_range)
+    try:
+        low, high = disp_range
+        return int(low), int(high)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"{what}: expected a (min, max) pair of integers or a number of disparities, got {disp_range!r}"
+        ) from None
+
+
+def match(
+    left: np.ndarray,
+    right: np.ndarray,
+    disp_range: tuple[int, int] | int,
+    method: str = "mccnn",
+    contrast: str = "auto",
+    channel: str = "luminance",
+    model: PathLike | None = None,
+    return_info: bool = False,
+) -> np.ndarray | tuple[np.ndarray, dict[str, Any]]:
+    """Disparity of a rectified pair through the full stereo chain (``anaglyph match``).
+
+    ``x_right = x_left - d`` with ``min <= d < max`` for ``disp_range=(min, max)`` (an
+    integer ``N`` means ``(0, N)``). Returns a float32 ``(H, W)`` map with **NaN where the
+    disparity is unknown** (the CLI's PFM files hold +inf there); with
+    ``return_info=True`` also a dict with the contrast vote and each stage's seconds.
+    ``method``: ``mccnn`` (learned, the default), ``mccnn-accurate`` (needs ``model``),
+    ``census``, ``zncc`` or ``mi``. ``contrast``: ``auto`` negates the right image when the
+    pair inverts contrast, ``same``, ``inverted`` or ``either`` (per pixel).
+
+    >>> d = anaglyph.match(left, right, disp_range=(0, 64))   # doctest: +SKIP
+    """
+    low, high = _disparity_range(disp_range)
+    model_path = os.fspath(model) if model is not None else None
+    disparity, info = _core.match_pair_arrays(
+        left, right, low, high, method=method, contrast=contrast, channel=channel, model=model_path
+    )
+    return (disparity, info) if return_info else disparity
+
+
+@dataclass
+class Simulation:
+    """A scene rendered through a rig, in memory (``anaglyph simulate`` without files).
+
+    ``captures``, ``whites`` (and ``darks`` with a dark signal): uint16 arrays per camera,
+    exactly the CLI's 16-bit PNG files. ``reflectance`` (float32 ``(H, W, bands)``),
+    ``disparity`` and ``depth`` (float32 ``(H, W)``): the truth per camera, at
+    ``wavelengths`` (nm).
+    """
+
+    rig: Rig
+    captures: dict[str, np.ndarray]
+    whites: dict[str, np.ndarray]
+    darks: dict[str, np.ndarray]
+    reflectance: dict[str, np.ndarray]
+    disparity: dict[str, np.ndarray]
+    depth: dict[str, np.ndarray]
+    wavelengths: np.ndarray
+    exposures: dict[str, float]
+    saturated_values: dict[str, int]
+
+    @property
+    def truth(self) -> dict[str, dict[str, np.ndarray]]:
+        """The ground truth: ``{"reflectance": ..., "disparity": ..., "depth": ...}``."""
+        return {"reflectance": self.reflectance, "disparity": self.disparity, "depth": self.depth}
+
+
+def simulate(
+    scene: str = "tabletop",
+    rig: Rig | str = "paper-2x4",
+    size: tuple[int, int] = (640, 480),
+    seed: int = 0,
+    noise: bool = True,
+    supersampling: int = 2,
+    vignetting: float = 0.0,
+    dark: tuple[float, float] | None = None,
+) -> Simulation:
+    """Renders ``scene`` (``tabletop``, ``clutter``, ``periodic``, ``checkerboard``,
+    ``random`` or a scene file) through ``rig`` (a Rig, a preset name or a rig file) at
+    ``size=(width, height)``, with sensor noise, unknown exposures and white boards.
+
+    >>> sim = anaglyph.simulate("tabletop", rig="paper-2x4", size=(160, 120))  # doctest: +SKIP
+    >>> sim.captures["r0c0"].dtype                                             # doctest: +SKIP
+    dtype('uint16')
+    """
+    rig = _rig(rig)
+    width, height = size
+    out = _core.simulate(
+        scene, rig, int(width), int(height), seed=seed, noise=noise, supersampling=supersampling,
+        vignetting=vignetting, dark=dark,
+    )
+    return Simulation(rig=rig, **out)
+
+
+def calibrate(
+    boards: Mapping[str, np.ndarray],
+    rig: Rig | str,
+    pattern: tuple[int, int],
+    reference: str | None = None,
+    model: str = "homography",
+) -> dict[str, dict[str, Any]]:
+    """Each camera's map onto the reference camera through the plane of a checkerboard
+    with ``pattern=(cols, rows)`` inner corners that every camera sees in ``boards``.
+
+    Returns per camera ``homography`` (3x3), ``residual_rms_px``, ``residual_max_px`` and
+    ``corners``. Pass ``{name: fit["homography"] ...}`` as ``reconstruct(calibration=...)``.
+    """
+    cols, rows = pattern
+    return _core.calibrate(dict(boards), _rig(rig), (int(cols), int(rows)), reference=reference, model=model)
+
+
+@dataclass
+class View:
+    """One reconstructed view: ``cube`` float32 ``(H, W, bands)`` (reflectance, NaN where
+    nothing was measured; None with ``output="registered"``), ``disparity`` float32
+    ``(H, W)`` per column step of the array (NaN: unknown), ``registered`` float32
+    ``(H, W, channels)`` with ``output="registered"`` or ``"both"`` (NaN: unseen)."""
+
+    name: str
+    disparity: np.ndarray
+    cube: np.ndarray | None = None
+    registered: np.ndarray | None = None
+    visibility: dict[str, Any] = field(default_factory=dict)
+    neighbour_agreement: float | None = None
+
+
+@dataclass
+class Reconstruction:
+    """A multispectral light field: a :class:`View` per camera, the band ``wavelengths``
+    (nm), the ``channel_labels`` of a registered stack, the run's ``manifest`` (what the
+    CLI's ``manifest.json`` records) and its ``warnings``."""
+
+    views: dict[str, View]
+    wavelengths: np.ndarray
+    channel_labels: list[str]
+    manifest: dict[str, Any]
+    warnings: list[str]
+
+    def __getitem__(self, name: str) -> View:
+        return self.views[name]
+
+    def __iter__(self):
+        return iter(self.views.values())
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def to_xarray(self) -> "xarray.Dataset":
+        """The light field as an ``xarray.Dataset`` with dims ``("view", "y", "x",
+        "wavelength")`` and a ``wavelength`` coordinate in nm (needs ``xarray``)."""
+        try:
+            import xarray as xr
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise ImportError("to_xarray needs xarray: pip install xarray") from e
+        names = list(self.views)
+        data: dict[str, Any] = {
+            "disparity": (("view", "y", "x"), np.stack([v.disparity for v in self])),
+        }
+        if all(v.cube is not None for v in self):
+            data["reflectance"] = (
+                ("view", "y", "x", "wavelength"),
+                np.stack([v.cube for v in self]),
+                {"units": "1", "long_name": "reflectance"},
+            )
+        if all(v.registered is not None for v in self):
+            data["registered"] = (("view", "y", "x", "channel"), np.stack([v.registered for v in self]))
+        coords: dict[str, Any] = {
+            "view": names,
+            "wavelength": ("wavelength", np.asarray(self.wavelengths), {"units": "nm"}),
+        }
+        if "registered" in data:
+            coords["channel"] = list(self.channel_labels)
+        return xr.Dataset(data, coords=coords, attrs={"generator": self.manifest.get("generator", "anaglyph")})
+
+
+def _progress(progress: bool | Progress | None) -> tuple[Any, Progress | None]:
+    """A tqdm bar and its callback (``progress=True``), the caller's callback, or none."""
+    if callable(progress):
+        return None, progress
+    if not progress:
+        return None, None
+    from tqdm.auto import tqdm  # type: ignore[import-untyped]
+
+    bar = tqdm(total=1, desc="anaglyph", unit="view", leave=False)
+
+    def update(stage: str, done: int, total: int) -> None:
+        if bar.desc != stage:
+            bar.set_description(stage, refresh=False)
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    return bar, update
+
+
+def reconstruct(
+    rig: Rig | str,
+    captures: Mapping[str, np.ndarray],
+    whites: Mapping[str, np.ndarray] | None = None,
+    darks: Mapping[str, np.ndarray] | None = None,
+    calibration: Mapping[str, Any] | PathLike | None = None,
+    views: Sequence[str] | None = None,
+    preset: str = "default",
+    output: str = "cube",
+    disp_range: str | tuple[int, int] | int = "auto",
+    method: str = "mccnn",
+    model: PathLike | None = None,
+    registration: str = "multi-baseline",
+    matching_image: str | None = None,
+    warp_kernel: str | None = None,
+    white_reflectance: float | None = None,
+    saturation: float | None = None,
+    progress: bool | Progress = True,
+) -> Reconstruction:
+    """The multispectral light field of an array's captures (``anaglyph reconstruct``, in
+    memory; the same pipeline and the same numbers).
+
+    ``captures``, ``whites``, ``darks``: one image per camera of ``rig``, by name.
+    ``calibration``: per camera a 3x3 homography onto the reference camera or a
+    calibration file, or the folder ``anaglyph calibrate`` wrote. ``views``: the cameras
+    whose views to reconstruct (default all). ``preset``: ``default``, ``fast`` or
+    ``paper``. ``output``: ``cube``, ``registered`` or ``both``. ``disp_range``: ``"auto"``
+    or ``(min, max)`` per column step. ``progress``: a tqdm bar (True), none (False) or a
+    callable ``(stage, done, total)``; an exception it raises stops the run at the next
+    stage boundary and is raised here, as is a KeyboardInterrupt. Warnings go to the
+    ``anaglyph`` logger.
+
+    >>> rec = anaglyph.reconstruct(sim.rig, sim.captures, whites=sim.whites)  # doctest: +SKIP
+    >>> rec["r0c0"].cube.shape                                                # doctest: +SKIP
+    (120, 160, 24)
+    """
+    rig = _rig(rig)
+    if not isinstance(captures, Mapping):
+        raise TypeError(f"captures: expected a dict of camera name -> image, got {type(captures).__name__}")
+    search: Any = disp_range
+    if not (isinstance(disp_range, str) and disp_range == "auto"):
+        search = _disparity_range(disp_range)
+    if calibration is not None and not isinstance(calibration, Mapping):
+        calibration = os.fspath(calibration)
+    bar, callback = _progress(progress)
+    try:
+        out = _core.reconstruct(
+            rig,
+            dict(captures),
+            whites=dict(whites) if whites is not None else None,
+            darks=dict(darks) if darks is not None else None,
+            calibration=dict(calibration) if isinstance(calibration, Mapping) else calibration,
+            views=list(views) if views is not None else None,
+            preset=preset,
+            output=output,
+            disp_range=search,
+            method=method,
+            model=os.fspath(model) if model is not None else None,
+            registration=registration,
+            matching_image=matching_image,
+            warp_kernel=warp_kernel,
+            white_reflectance=white_reflectance,
+            saturation=saturation,
+            progress=callback,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    for warning in out["warnings"]:
+        logger.warning(warning)
+    views_out = {name: View(name=name, **view) for name, view in out["views"].items()}
+    return Reconstruction(
+        views=views_out,
+        wavelengths=out["wavelengths"],
+        channel_labels=out["channel_labels"],
+        manifest=out["manifest"],
+        warnings=out["warnings"],
+    )

@@ -1,0 +1,342 @@
+//! `anaglyph.reconstruct`: a rig's captures in memory to a multispectral light field in
+//! memory, through the core's `reconstruct` (the CLI's pipeline, byte for byte).
+
+use crate::arrays::{array, full_scale, image};
+use crate::compute::run_cancellable;
+use crate::errors::{to_py, type_error, IntoPyResult};
+use crate::rig::Rig;
+use anaglyph_core::choice::Choice;
+use anaglyph_core::disparity::DisparityRange;
+use anaglyph_core::image::Image;
+use anaglyph_core::io::read_linear_image;
+use anaglyph_core::reconstruct::{
+    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, PipelineSettings, Preset,
+    Products, Stage,
+};
+use anaglyph_core::rectify::{Calibration, Homography};
+use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
+use anaglyph_core::stereo::MatchMethod;
+use anaglyph_core::Error;
+use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+
+/// The array `pictures[name]` of each camera, or None where `pictures` has none; names
+/// that are not the rig's cameras are an error.
+fn per_camera<'py>(
+    rig: &anaglyph_core::rig::Rig,
+    pictures: Option<&Bound<'py, PyDict>>,
+    what: &str,
+) -> PyResult<Vec<Option<Bound<'py, PyAny>>>> {
+    let Some(pictures) = pictures else {
+        return Ok(vec![None; rig.cameras.len()]);
+    };
+    for key in pictures.keys() {
+        let name: String = key
+            .extract()
+            .map_err(|_| type_error(format!("{what}: keys must be camera names (str)")))?;
+        rig.camera_index(&name).map_err(|e| {
+            to_py(Error::NotFound {
+                what: format!("camera of the {what} dict"),
+                name,
+                available: match e {
+                    Error::NotFound { available, .. } => available,
+                    other => other.to_string(),
+                },
+            })
+        })?;
+    }
+    rig.cameras
+        .iter()
+        .map(|cam| pictures.get_item(&cam.name))
+        .collect()
+}
+
+/// A camera's calibration from `calibration`: a 3x3 homography onto the reference camera
+/// (an array), or the path of a calibration file.
+fn calibration_of(value: &Bound<'_, PyAny>, camera: &str) -> PyResult<Calibration> {
+    if let Ok(path) = value.extract::<PathBuf>() {
+        if !value.is_instance_of::<PyString>() || !path.as_os_str().is_empty() {
+            return Calibration::load(&path).py();
+        }
+    }
+    let what = format!("calibration of camera {camera}");
+    let h = value
+        .call_method1("astype", ("float64",))
+        .and_then(|a| a.extract::<PyReadonlyArrayDyn<'_, f64>>())
+        .map_err(|_| type_error(format!("{what}: expected a 3x3 array or a file path")))?;
+    if h.shape() != [3, 3] {
+        return Err(crate::errors::shape_error(what, h.shape(), &[3, 3]));
+    }
+    let v: Vec<f64> = h.as_array().iter().copied().collect();
+    Ok(Calibration::Plane(Homography {
+        h: [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]],
+    }))
+}
+
+/// The stage's name as the progress callback receives it.
+fn stage_name(stage: Stage) -> &'static str {
+    match stage {
+        Stage::Rectification => "rectification",
+        Stage::Registration => "registration",
+        Stage::Views => "views",
+    }
+}
+
+/// The captures (and white boards, dark frames and calibrations) as the core's.
+fn array_captures(
+    rig: &anaglyph_core::rig::Rig,
+    captures: &Bound<'_, PyDict>,
+    whites: Option<&Bound<'_, PyDict>>,
+    darks: Option<&Bound<'_, PyDict>>,
+    calibration: Option<&Bound<'_, PyAny>>,
+) -> PyResult<ArrayCaptures> {
+    let pictures = per_camera(rig, Some(captures), "captures")?;
+    let whites = per_camera(rig, whites, "whites")?;
+    let darks = per_camera(rig, darks, "darks")?;
+    let calibrations: Vec<Option<Calibration>> = match calibration {
+        None => vec![None; rig.cameras.len()],
+        Some(c) => match c.cast::<PyDict>() {
+            Ok(dict) => per_camera(rig, Some(dict), "calibration")?
+                .iter()
+                .zip(&rig.cameras)
+                .map(|(v, cam)| v.as_ref().map(|v| calibration_of(v, &cam.name)).transpose())
+                .collect::<PyResult<_>>()?,
+            Err(_) => {
+                let folder: PathBuf = c.extract().map_err(|_| {
+                    type_error("calibration: expected a dict of 3x3 homographies or a folder path")
+                })?;
+                let loaded = ArrayCaptures::load_calibrations(rig, &folder).py()?;
+                loaded.into_iter().map(Some).collect()
+            }
+        },
+    };
+    let mut cameras = Vec::with_capacity(rig.cameras.len());
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        let channels = Some(cam.sensor.channel_count());
+        let capture = pictures[i].as_ref().ok_or_else(|| {
+            to_py(Error::mismatch(
+                "captures",
+                format!("no capture of camera {}", cam.name),
+                format!(
+                    "one per camera of rig '{}' ({})",
+                    rig.file.name,
+                    rig.cameras
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ))
+        })?;
+        let read = |object: &Bound<'_, PyAny>, what: &str| -> PyResult<Image<f32>> {
+            image(object, &format!("{what} of camera {}", cam.name), channels)
+        };
+        let full_scale = full_scale(capture);
+        let mut capture = read(capture, "capture")?;
+        let dark = match (&darks[i], &cam.dark, cam.black_level) {
+            (Some(d), _, _) => Some(Dark::Frame(read(d, "dark frame")?)),
+            (None, Some(path), _) => Some(Dark::Frame(read_linear_image(path).py()?)),
+            (None, None, Some(level)) => {
+                let what = format!("capture of camera {}", cam.name);
+                Some(Dark::level(level, full_scale, std::path::Path::new(&what)).py()?)
+            }
+            (None, None, None) => None,
+        };
+        if let Some(Dark::Frame(frame)) = &dark {
+            let size = |i: &Image<f32>| [i.height, i.width, i.channels];
+            if size(frame) != size(&capture) {
+                return Err(crate::errors::shape_error(
+                    format!("dark frame of camera {} against its capture", cam.name),
+                    &size(frame),
+                    &size(&capture),
+                ));
+            }
+        }
+        let mut white = whites[i]
+            .as_ref()
+            .map(|w| read(w, "white board"))
+            .transpose()?;
+        if let Some(dark) = &dark {
+            dark.subtract_from(&mut capture);
+            if let Some(white) = &mut white {
+                dark.subtract_from(white);
+            }
+        }
+        cameras.push(CameraCapture {
+            name: cam.name.clone(),
+            capture,
+            white,
+            exposure: cam.exposure,
+            calibration: calibrations[i].clone(),
+        });
+    }
+    ArrayCaptures::from_cameras(cameras).py()
+}
+
+/// The search range: "auto" or (min, max).
+fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<Option<DisparityRange>> {
+    if let Ok(text) = disp_range.extract::<String>() {
+        if text == "auto" {
+            return Ok(None);
+        }
+        return Err(to_py(Error::mismatch(
+            "disp_range",
+            format!("'{text}'"),
+            "\"auto\" or a (min, max) pair of integers",
+        )));
+    }
+    let (min, max): (i32, i32) = disp_range.extract().map_err(|_| {
+        type_error("disp_range: expected \"auto\" or a (min, max) pair of integers")
+    })?;
+    DisparityRange::new(min, max).py().map(Some)
+}
+
+/// Reconstructs the light field of `captures` (see the Python wrapper's docs).
+#[pyfunction]
+#[pyo3(signature = (rig, captures, whites=None, darks=None, calibration=None, views=None,
+                    preset="default", output="cube", disp_range=None, method="mccnn",
+                    model=None, registration="multi-baseline", matching_image=None,
+                    warp_kernel=None, white_reflectance=None, saturation=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn reconstruct<'py>(
+    py: Python<'py>,
+    rig: &Rig,
+    captures: &Bound<'py, PyDict>,
+    whites: Option<&Bound<'py, PyDict>>,
+    darks: Option<&Bound<'py, PyDict>>,
+    calibration: Option<&Bound<'py, PyAny>>,
+    views: Option<Vec<String>>,
+    preset: &str,
+    output: &str,
+    disp_range: Option<&Bound<'py, PyAny>>,
+    method: &str,
+    model: Option<PathBuf>,
+    registration: &str,
+    matching_image: Option<&str>,
+    warp_kernel: Option<&str>,
+    white_reflectance: Option<f64>,
+    saturation: Option<f32>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let started = std::time::Instant::now();
+    let rig = &rig.inner;
+    let preset = Preset::parse_choice(preset).py()?;
+    let products = Products::parse_choice(output).py()?;
+    let method = MatchMethod::parse_choice(method).py()?;
+    let registration = RegistrationMode::parse_choice(registration).py()?;
+    let matching_image = matching_image
+        .map(MatchingImage::parse_choice)
+        .transpose()
+        .py()?;
+    let warp_kernel = warp_kernel.map(WarpKernel::parse_choice).transpose().py()?;
+    let range = match disp_range {
+        None => None,
+        Some(r) => search_range(r)?,
+    };
+    if let Some(views) = &views {
+        for name in views {
+            rig.camera_index(name).py()?;
+        }
+    }
+    let captures = array_captures(rig, captures, whites, darks, calibration)?;
+    let loading_seconds = started.elapsed().as_secs_f64();
+    let cancel = AtomicBool::new(false);
+    let callback_error: Mutex<Option<PyErr>> = Mutex::new(None);
+    let report = |stage: Stage, done: usize, total: usize| {
+        let Some(callback) = &progress else { return };
+        Python::attach(|py| {
+            if let Err(e) = callback.call1(py, (stage_name(stage), done, total)) {
+                if let Ok(mut slot) = callback_error.lock() {
+                    slot.get_or_insert(e);
+                }
+                cancel.store(true, Ordering::Relaxed);
+            }
+        });
+    };
+    let outcome = run_cancellable(py, Some(&cancel), || {
+        let network = method.network(model.as_deref())?;
+        let cost = method.cost(network.as_ref())?;
+        let mut settings = PipelineSettings::with_preset(cost, preset);
+        settings.registration.mode = registration;
+        if let Some(range) = range {
+            settings.registration.range = range;
+            settings.automatic_search_range = false;
+        }
+        settings.keep_registered = products.registered();
+        if let Some(v) = white_reflectance {
+            settings.white_reflectance = v;
+        }
+        if let Some(v) = saturation {
+            settings.saturation_level = v;
+        }
+        if let Some(m) = matching_image {
+            settings.matching_image = m;
+        }
+        if let Some(k) = warp_kernel {
+            settings.warp_kernel = k;
+        }
+        settings.views = views.clone();
+        settings.cancel = Some(&cancel);
+        settings.validate()?;
+        let field = core_reconstruct(rig, &captures, &settings, &report)?;
+        let parameters = serde_json::json!({
+            "interface": "python",
+            "preset": preset.name(),
+            "output": products.name(),
+            "registration": registration.name(),
+            "method": method.name(),
+            "model": model.as_ref().map(|p| p.display().to_string()),
+            "disp_range": match range {
+                Some(r) => serde_json::json!(r),
+                None => serde_json::json!("auto"),
+            },
+            "white_reflectance": settings.white_reflectance,
+            "saturation": settings.saturation_level,
+            "matching_image": settings.matching_image,
+            "warp_kernel": settings.warp_kernel,
+            "lambda": rig.file.reconstruction.lambda,
+            "out_of_band": rig.file.reconstruction.out_of_band,
+        });
+        let manifest = field.manifest(parameters, loading_seconds)?;
+        Ok((field, manifest))
+    });
+    if let Some(e) = callback_error.lock().ok().and_then(|mut slot| slot.take()) {
+        return Err(e);
+    }
+    let (field, manifest) = outcome?;
+    let out = PyDict::new(py);
+    let (w, h, bands) = (field.width, field.height, field.bands.len());
+    let views = PyDict::new(py);
+    let stack_channels = field.channel_labels.len();
+    for view in field.views {
+        let v = PyDict::new(py);
+        if products.cubes() {
+            v.set_item("cube", array(py, &[h, w, bands], view.reflectance)?)?;
+        }
+        v.set_item("disparity", array(py, &[h, w], view.disparity.data)?)?;
+        if let Some(stack) = view.registered {
+            v.set_item("registered", array(py, &[h, w, stack_channels], stack)?)?;
+        }
+        let visibility = PyDict::new(py);
+        visibility.set_item("seen_by_all", view.visibility.seen_by_all)?;
+        visibility.set_item("measured_fraction", view.visibility.measured_fraction)?;
+        visibility.set_item("disputed_fraction", view.visibility.disputed_fraction)?;
+        v.set_item("visibility", visibility)?;
+        v.set_item("neighbour_agreement", view.neighbour_agreement)?;
+        views.set_item(&view.name, v)?;
+    }
+    out.set_item("views", views)?;
+    out.set_item("wavelengths", array(py, &[bands], field.bands)?)?;
+    out.set_item("channel_labels", field.channel_labels)?;
+    out.set_item("warnings", field.warnings)?;
+    let json = py.import("json")?;
+    out.set_item(
+        "manifest",
+        json.call_method1("loads", (manifest.to_string(),))?,
+    )?;
+    Ok(out)
+}
