@@ -18,11 +18,11 @@
 
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
-use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
-use anaglyph_core::refine::GuidedRefinement;
-use anaglyph_core::register::{
-    ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings,
+use anaglyph_core::reconstruct::{
+    reconstruct, ArrayCaptures, Disparities, DisparitySearch, LightField, PipelineSettings,
 };
+use anaglyph_core::refine::GuidedRefinement;
+use anaglyph_core::register::{ArrayGeometry, MatchingImage, RegistrationMode};
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile, TEST_SCENES};
 use anaglyph_core::simulate::{Simulation, SimulationSettings};
@@ -103,17 +103,15 @@ fn main() -> anyhow::Result<()> {
             } else {
                 MatchingImage::CommonSignals
             };
+            let search = DisparitySearch::Fixed(DisparityRange::up_to(max_disp)?);
+            let disparities = match given {
+                Some(maps) => Disparities::Given(column_step_maps(maps, width, height)?),
+                None => Disparities::Search(search),
+            };
             let mut pipeline = PipelineSettings {
-                registration: RegistrationSettings {
-                    mode: registration_mode,
-                    cost: MatchingCost::Learned(&network),
-                    range: DisparityRange::up_to(max_disp)?,
-                },
-                automatic_search_range: false,
+                registration: registration_mode,
+                disparities,
                 matching_image,
-                given_disparities: given
-                    .map(|maps| column_step_maps(maps, width, height))
-                    .transpose()?,
                 white_reflectance: simulation.settings.white_reflectance,
                 solve: solve_settings(refinements[0], disputed_tolerance),
                 ..PipelineSettings::new(MatchingCost::Learned(&network))
@@ -122,8 +120,8 @@ fn main() -> anyhow::Result<()> {
             let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
             let seconds = start.elapsed().as_secs_f64();
             // The other refinements reuse this registration.
-            pipeline.given_disparities =
-                Some(field.views.iter().map(|v| v.disparity.clone()).collect());
+            pipeline.disparities =
+                Disparities::Given(field.views.iter().map(|v| v.disparity.clone()).collect());
             for (k, &refinement) in refinements.iter().enumerate() {
                 let (field, seconds) = if k == 0 {
                     (field.clone(), seconds)

@@ -6,7 +6,7 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::filters::SelectionCriterion;
 use anaglyph_core::plane_calibration::BoardPattern;
 use anaglyph_core::reconstruct::{
-    Preset, Products, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
+    DisparitySearch, Preset, Products, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
 };
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::OutOfBand;
@@ -483,21 +483,14 @@ pub enum ViewList {
     Some(Vec<String>),
 }
 
-/// `--disp-range` / `--max-disp`: a range of disparities or `auto`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SearchRangeArg {
-    Auto,
-    Fixed(DisparityRange),
-}
-
 /// `--max-disp N|auto`: `0:N`.
-fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
+fn parse_search_range(text: &str) -> Result<DisparitySearch, String> {
     if text.eq_ignore_ascii_case("auto") {
-        return Ok(SearchRangeArg::Auto);
+        return Ok(DisparitySearch::Auto);
     }
     match text.trim().parse::<i32>() {
         Ok(n) if (2..=4096).contains(&n) => {
-            Ok(SearchRangeArg::Fixed(DisparityRange { min: 0, max: n }))
+            Ok(DisparitySearch::Fixed(DisparityRange { min: 0, max: n }))
         }
         _ => Err(format!(
             "'{text}' (expected auto or a number of disparities in 2..=4096)"
@@ -506,11 +499,11 @@ fn parse_search_range(text: &str) -> Result<SearchRangeArg, String> {
 }
 
 /// `--disp-range MIN:MAX|auto`.
-fn parse_signed_search_range(text: &str) -> Result<SearchRangeArg, String> {
+fn parse_signed_search_range(text: &str) -> Result<DisparitySearch, String> {
     if text.eq_ignore_ascii_case("auto") {
-        return Ok(SearchRangeArg::Auto);
+        return Ok(DisparitySearch::Auto);
     }
-    parse_disparity_range(text).map(SearchRangeArg::Fixed)
+    parse_disparity_range(text).map(DisparitySearch::Fixed)
 }
 
 fn parse_disparity_range(text: &str) -> Result<DisparityRange, String> {
@@ -621,10 +614,10 @@ pub struct ReconstructArgs {
     /// to a plane sees points beyond it at d < 0), or `auto` (the default) to choose both
     /// ends from a coarse registration of the captures (recorded in the manifest).
     #[arg(long, value_parser = parse_signed_search_range, allow_hyphen_values = true)]
-    pub disp_range: Option<SearchRangeArg>,
+    pub disp_range: Option<DisparitySearch>,
     /// Shorthand for `--disp-range 0:N` (or `auto`).
     #[arg(long, value_parser = parse_search_range, conflicts_with = "disp_range")]
-    pub max_disp: Option<SearchRangeArg>,
+    pub max_disp: Option<DisparitySearch>,
     /// The stages and tuning: `default` (every stage, the measured defaults), `fast`
     /// (a lighter scene prior: about 15 % quicker), `paper` (the paper's pipeline: Eq. 6
     /// on bilinearly warped measurements, no prior, no refinement). Tuning options
@@ -655,10 +648,10 @@ pub struct ReconstructArgs {
 
 impl ReconstructArgs {
     /// The search range asked for: `--disp-range`, else `--max-disp`, else `auto`.
-    pub fn search_range(&self) -> SearchRangeArg {
+    pub fn search_range(&self) -> DisparitySearch {
         self.disp_range
             .or(self.max_disp)
-            .unwrap_or(SearchRangeArg::Auto)
+            .unwrap_or(DisparitySearch::Auto)
     }
 }
 

@@ -7,12 +7,10 @@ use anaglyph_core::evaluation::{bad_pixel_share, score_cube, seen_by_all_views, 
 use anaglyph_core::io::write_disparity_preview;
 use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{
-    reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
-    Products,
+    reconstruct, write_light_field, ArrayCaptures, Disparities, DisparitySearch, LightField,
+    OutputOptions, PipelineSettings, Products,
 };
-use anaglyph_core::register::{
-    ArrayGeometry, RegistrationMode, RegistrationSettings, DEFAULT_REGISTRATION,
-};
+use anaglyph_core::register::{ArrayGeometry, RegistrationMode, DEFAULT_REGISTRATION};
 use anaglyph_core::rig::Rig;
 use anaglyph_core::scene::{Scene, SceneFile, TEST_SCENES};
 use anaglyph_core::simulate::{write_simulation, Simulation, SimulationSettings};
@@ -145,12 +143,9 @@ pub fn run_presets(
         let captures = ArrayCaptures::from_simulation(&simulation);
         let max_disp = search_range(&simulation);
         let mut pipeline = PipelineSettings {
-            registration: RegistrationSettings {
-                mode: DEFAULT_REGISTRATION,
-                cost: MatchingCost::Learned(&network),
-                range: DisparityRange::up_to(max_disp)?,
-            },
-            automatic_search_range: false,
+            disparities: Disparities::Search(DisparitySearch::Fixed(DisparityRange::up_to(
+                max_disp,
+            )?)),
             white_reflectance: simulation.settings.white_reflectance,
             ..PipelineSettings::new(MatchingCost::Learned(&network))
         };
@@ -193,8 +188,8 @@ pub fn run_presets(
         )?;
         let bad_2 = bad_pixel_share(&field.views[0].disparity.data, truth_map, None, 2.0);
         let estimated = scores(&field, &simulation, &geometry, seconds)?;
-        pipeline.given_disparities = Some(simulation.disparity_maps());
-        pipeline.registration.mode = RegistrationMode::Pairwise;
+        pipeline.disparities = Disparities::Given(simulation.disparity_maps());
+        pipeline.registration = RegistrationMode::Pairwise;
         let start = Instant::now();
         let oracle = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {})?;
         let true_disparity = scores(

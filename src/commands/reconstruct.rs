@@ -3,17 +3,14 @@
 //! per stage.
 
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
-use crate::cli::{ReconstructArgs, SearchRangeArg, TuningArgs, ViewList};
+use crate::cli::{ReconstructArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder};
 use anaglyph_core::reconstruct::{
-    reconstruct, write_light_field, ArrayCaptures, LightField, OutputOptions, PipelineSettings,
-    Stage,
+    reconstruct, write_light_field, ArrayCaptures, Disparities, LightField, OutputOptions,
+    PipelineSettings, ReconstructOptions, SolveTuning, Stage,
 };
-use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::rig::Rig;
-use anaglyph_core::solve::{ScenePriorSettings, SolveSettings};
-use anaglyph_core::stereo::MatchingCost;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
@@ -52,11 +49,10 @@ fn stage_bar() -> ProgressBar {
 
 pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let method = args.registration.method;
-    let network = method.network(args.registration.model.as_deref())?;
-    let cost = method.cost(network.as_ref())?;
-    let mut settings = pipeline_settings(&args, cost);
-    settings.validate()?;
+    let request = reconstruct_options(&args);
+    request.validate()?;
+    let network = request.network()?;
+    let mut settings = request.settings(network.as_ref())?;
     let rig = load_rig(&args)?;
     for (option, dir) in [
         ("--truth", &args.truth),
@@ -78,11 +74,15 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         args.white.as_deref(),
         args.calibration.as_deref(),
     )?;
+    if let Some(dir) = &args.true_disparity {
+        let maps = true_disparities(dir, &rig, captures.width, captures.height)?;
+        settings.disparities = Disparities::Given(maps);
+    }
     let options = OutputOptions {
         products: args.output,
         probes: args.probe.clone().map(|p| p.0).unwrap_or_default(),
         truth: args.truth.clone(),
-        parameters: manifest_parameters(&args, &rig, &settings),
+        parameters: manifest_parameters(&args, &rig, &request, &settings),
         loading_seconds: 0.0,
     };
     let views = settings
@@ -92,11 +92,6 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     let bands = rig.reconstruction_shape()?.count;
     let views: Vec<&str> = views.iter().map(String::as_str).collect();
     options.check(captures.width, captures.height, bands, &views)?;
-    if let Some(dir) = &args.true_disparity {
-        let maps = true_disparities(dir, &rig, captures.width, captures.height)?;
-        settings.given_disparities = Some(maps);
-        settings.automatic_search_range = false;
-    }
     let options = OutputOptions {
         loading_seconds: started.elapsed().as_secs_f64(),
         ..options
@@ -156,123 +151,64 @@ fn load_rig(args: &ReconstructArgs) -> anyhow::Result<Rig> {
     Ok(rig)
 }
 
-/// The preset's settings with every option the user gave applied over them.
-fn pipeline_settings<'a>(args: &ReconstructArgs, cost: MatchingCost<'a>) -> PipelineSettings<'a> {
-    let tuning = &args.tuning;
-    let mut settings = PipelineSettings::with_preset(cost, args.preset);
-    settings.registration.mode = args.registration.registration;
-    if let SearchRangeArg::Fixed(range) = args.search_range() {
-        settings.registration.range = range;
-        settings.automatic_search_range = false;
+/// What the command line asks of reconstruction: the one conversion of its options into
+/// the core's, which both the CLI and the Python package turn into settings.
+fn reconstruct_options(args: &ReconstructArgs) -> ReconstructOptions {
+    let t = &args.tuning;
+    ReconstructOptions {
+        preset: args.preset,
+        registration: args.registration.registration,
+        method: args.registration.method,
+        model: args.registration.model.clone(),
+        disp_range: args.search_range(),
+        output: args.output,
+        views: match &args.views {
+            ViewList::All => None,
+            ViewList::Some(list) => Some(list.clone()),
+        },
+        white_reflectance: args.white_reflectance,
+        saturation: args.saturation,
+        solver: t.solver,
+        matching_image: t.matching_image,
+        warp_kernel: t.warp_kernel,
+        tuning: SolveTuning {
+            disputed_tolerance: t.disputed_tolerance,
+            scene_prior_inconsistency: t.scene_prior_inconsistency,
+            no_scene_prior: t.no_scene_prior,
+            scene_prior_noise: t.scene_prior_noise,
+            scene_prior_clusters: t.scene_prior_clusters.map(|c| c as usize),
+            scene_prior_rounds: t.scene_prior_rounds.map(|r| r as usize),
+            no_refine: t.no_refine,
+            refine_radius: t.refine_radius.map(|r| r as usize),
+            refine_epsilon: t.refine_epsilon,
+            refine_confidence: t.refine_confidence,
+        },
     }
-    settings.keep_registered = args.output.registered();
-    settings.white_reflectance = args.white_reflectance;
-    settings.saturation_level = args.saturation;
-    settings.demux.solver = tuning.solver;
-    settings.views = match &args.views {
-        ViewList::All => None,
-        ViewList::Some(list) => Some(list.clone()),
-    };
-    if let Some(choice) = tuning.matching_image {
-        settings.matching_image = choice;
-    }
-    if let Some(choice) = tuning.warp_kernel {
-        settings.warp_kernel = choice;
-    }
-    settings.solve = solve_settings(tuning, settings.solve);
-    settings
-}
-
-/// The preset's solve with the tuning options applied: a stage's option switches it on,
-/// `--no-…` off, 0 off where documented.
-fn solve_settings(tuning: &TuningArgs, preset: SolveSettings) -> SolveSettings {
-    let mut solve = preset;
-    if let Some(t) = tuning.disputed_tolerance {
-        solve.disputed_tolerance = (t > 0.0).then_some(t);
-    }
-    let prior_asked = tuning.scene_prior_noise.is_some()
-        || tuning.scene_prior_clusters.is_some()
-        || tuning.scene_prior_rounds.is_some();
-    if prior_asked && solve.scene_prior.is_none() {
-        solve.scene_prior = Some(ScenePriorSettings::default());
-    }
-    if let Some(prior) = &mut solve.scene_prior {
-        prior.noise_scale = tuning.scene_prior_noise.unwrap_or(prior.noise_scale);
-        prior.clusters = tuning
-            .scene_prior_clusters
-            .map_or(prior.clusters, |c| c as usize);
-        prior.propagation_rounds = tuning
-            .scene_prior_rounds
-            .map_or(prior.propagation_rounds, |r| r as usize);
-    }
-    if let Some(k) = tuning.scene_prior_inconsistency {
-        solve.inconsistency_factor = (k > 0.0).then_some(k);
-    }
-    if tuning.no_scene_prior {
-        solve.scene_prior = None;
-        solve.inconsistency_factor = None;
-    }
-    let refine_asked = tuning.refine_radius.is_some()
-        || tuning.refine_epsilon.is_some()
-        || tuning.refine_confidence.is_some();
-    if refine_asked && solve.refinement.is_none() {
-        solve.refinement = Some(GuidedRefinement::default());
-    }
-    if let Some(refinement) = &mut solve.refinement {
-        refinement.radius = tuning
-            .refine_radius
-            .map_or(refinement.radius, |r| r as usize);
-        refinement.epsilon = tuning.refine_epsilon.unwrap_or(refinement.epsilon);
-        if let Some(scale) = tuning.refine_confidence {
-            refinement.confidence_scale = (scale > 0.0).then_some(scale);
-        }
-    }
-    if tuning.no_refine {
-        solve.refinement = None;
-    }
-    solve
 }
 
 /// Inputs and settings as the manifest records them.
 fn manifest_parameters(
     args: &ReconstructArgs,
     rig: &Rig,
+    request: &ReconstructOptions,
     settings: &PipelineSettings<'_>,
 ) -> serde_json::Value {
     let path = |p: &Option<std::path::PathBuf>| p.as_ref().map(|p| p.display().to_string());
-    serde_json::json!({
+    let mut record = request.record(settings, rig);
+    let inputs = serde_json::json!({
+        "interface": "cli",
         "rig": args.rig.display().to_string(),
         "captures": path(&args.captures),
         "white": path(&args.white),
         "calibration": path(&args.calibration),
         "illuminant": args.illuminant,
-        "preset": args.preset.to_string(),
-        "output": args.output,
-        "registration": if settings.given_disparities.is_some() {
-            "true disparities".to_string()
-        } else {
-            format!("{:?}", settings.registration.mode)
-        },
-        "matching_image": settings.matching_image,
         "true_disparity": path(&args.true_disparity),
-        "method": args.registration.method.to_string(),
-        "model": path(&args.registration.model),
-        "disp_range": match args.search_range() {
-            SearchRangeArg::Fixed(range) => serde_json::json!(range),
-            SearchRangeArg::Auto => serde_json::json!("auto"),
-        },
-        "white_reflectance": args.white_reflectance,
-        "saturation": args.saturation,
-        "solver": format!("{:?}", settings.demux.solver),
-        "lambda": rig.file.reconstruction.lambda,
-        "refinement": settings.solve.refinement,
-        "scene_prior": settings.solve.scene_prior,
-        "disputed_tolerance": settings.solve.disputed_tolerance,
-        "inconsistency_factor": settings.solve.inconsistency_factor,
-        "warp_kernel": settings.warp_kernel,
-        "out_of_band": rig.file.reconstruction.out_of_band,
         "probes": args.probe.as_ref().map(|p| p.0.clone()),
-    })
+    });
+    if let (Some(record), serde_json::Value::Object(inputs)) = (record.as_object_mut(), inputs) {
+        record.extend(inputs);
+    }
+    record
 }
 
 /// Warnings on standard error; what was reconstructed, per view and per stage, on
@@ -323,58 +259,56 @@ mod tests {
     use super::*;
     use crate::cli::{Args, Command};
     use anaglyph_core::disparity::DisparityRange;
-    use anaglyph_core::register::WarpKernel;
+    use anaglyph_core::reconstruct::{DisparitySearch, Preset};
     use clap::Parser;
 
-    fn settings_of(extra: &[&str]) -> PipelineSettings<'static> {
+    fn options_of(extra: &[&str]) -> ReconstructOptions {
         let mut argv = vec!["anaglyph", "reconstruct", "--rig", "r.toml", "--out", "o"];
         argv.extend_from_slice(extra);
         let Command::Reconstruct(args) = Args::try_parse_from(argv).unwrap().command else {
             panic!("not reconstruct");
         };
-        pipeline_settings(&args, MatchingCost::Census)
+        reconstruct_options(&args)
     }
 
     #[test]
-    fn presets_choose_the_stages_and_options_override_them() {
-        let default = settings_of(&[]);
-        assert_eq!(default.solve, SolveSettings::default());
-        assert_eq!(default.warp_kernel, WarpKernel::Lanczos3);
-        assert!(default.automatic_search_range);
-
-        let paper = settings_of(&["--preset", "paper"]);
-        assert_eq!(paper.solve, SolveSettings::paper());
-        assert_eq!(paper.warp_kernel, WarpKernel::Bilinear);
-
-        let fast = settings_of(&["--preset", "fast"]);
-        let prior = fast.solve.scene_prior.unwrap();
-        assert_eq!((prior.clusters, prior.propagation_rounds), (8, 0));
-
-        // A stage's option switches it on over a preset without it.
-        let refined = settings_of(&["--preset", "paper", "--refine-radius", "3"]);
-        assert_eq!(refined.solve.refinement.unwrap().radius, 3);
-        assert!(refined.solve.scene_prior.is_none());
-
-        // --no-scene-prior also switches off the stage that hands its pixels to the prior.
-        let no_prior = settings_of(&["--no-scene-prior", "--max-disp", "40"]);
-        assert!(no_prior.solve.scene_prior.is_none());
-        assert!(no_prior.solve.inconsistency_factor.is_none());
-        no_prior.validate().unwrap();
+    fn every_option_reaches_the_core_s_options() {
+        assert_eq!(options_of(&[]), ReconstructOptions::default());
+        let given = options_of(&[
+            "--preset",
+            "paper",
+            "--method",
+            "census",
+            "--disp-range",
+            "-24:8",
+            "--views",
+            "r0c0,r1c1",
+            "--no-scene-prior",
+            "--refine-radius",
+            "3",
+            "--scene-prior-clusters",
+            "5",
+            "--solver",
+            "lsqr",
+            "--output",
+            "both",
+        ]);
+        assert_eq!(given.preset, Preset::Paper);
         assert_eq!(
-            no_prior.registration.range,
-            DisparityRange { min: 0, max: 40 }
+            given.disp_range,
+            DisparitySearch::Fixed(DisparityRange { min: -24, max: 8 })
         );
-        assert!(!no_prior.automatic_search_range);
-        let signed = settings_of(&["--disp-range", "-24:8"]);
+        assert_eq!(given.views, Some(vec!["r0c0".into(), "r1c1".into()]));
+        assert!(given.tuning.no_scene_prior);
+        assert_eq!(given.tuning.refine_radius, Some(3));
+        assert_eq!(given.tuning.scene_prior_clusters, Some(5));
+        assert_eq!(given.solver.to_string(), "lsqr");
+        assert!(given.output.registered() && given.output.cubes());
         assert_eq!(
-            signed.registration.range,
-            DisparityRange { min: -24, max: 8 }
+            options_of(&["--max-disp", "40"]).disp_range,
+            DisparitySearch::Fixed(DisparityRange { min: 0, max: 40 })
         );
-        assert!(!signed.automatic_search_range);
-        assert!(settings_of(&["--disp-range", "auto"]).automatic_search_range);
-
-        let off = settings_of(&["--disputed-tolerance", "0", "--refine-confidence", "0"]);
-        assert!(off.solve.disputed_tolerance.is_none());
-        assert!(off.solve.refinement.unwrap().confidence_scale.is_none());
+        let settings = given.settings(None).unwrap();
+        assert!(settings.solve.scene_prior.is_none());
     }
 }

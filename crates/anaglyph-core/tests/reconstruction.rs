@@ -9,7 +9,9 @@
 use anaglyph_core::builtin;
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{bad_pixel_share, score_cube, seen_by_all_views};
-use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, LightField, PipelineSettings};
+use anaglyph_core::reconstruct::{
+    reconstruct, ArrayCaptures, Disparities, DisparitySearch, LightField, PipelineSettings,
+};
 use anaglyph_core::refine::GuidedRefinement;
 use anaglyph_core::register::{
     ArrayGeometry, MatchingImage, RegistrationMode, RegistrationSettings, COMMON_SIGNALS,
@@ -71,16 +73,19 @@ fn settings<'a>(
     given: Option<Vec<DisparityMap>>,
 ) -> PipelineSettings<'a> {
     PipelineSettings {
-        registration: RegistrationSettings {
-            mode,
-            cost,
-            range: DisparityRange::up_to(16).unwrap(),
+        registration: mode,
+        disparities: match given {
+            Some(maps) => Disparities::Given(maps),
+            None => fixed(DisparityRange::up_to(16).unwrap()),
         },
-        automatic_search_range: false,
-        given_disparities: given,
         solve: SolveSettings::paper(),
         ..PipelineSettings::new(cost)
     }
+}
+
+/// Registration over `range`.
+fn fixed(range: DisparityRange) -> Disparities {
+    Disparities::Search(DisparitySearch::Fixed(range))
 }
 
 /// (r0c0 PSNR, r0c0 PSNR over pixels all cameras see, mean PSNR over views, r0c0 bad-2 %).
@@ -193,7 +198,7 @@ fn an_array_registered_to_a_plane_reconstructs_over_an_estimated_signed_range() 
         });
     assert!(lo < -2.0 && hi > 2.0, "truth spans {lo}..{hi}");
     let pipeline = PipelineSettings {
-        automatic_search_range: true,
+        disparities: Disparities::Search(DisparitySearch::Auto),
         ..settings(
             RegistrationMode::MultiBaseline,
             MatchingCost::Learned(&network),
@@ -222,8 +227,7 @@ fn an_array_registered_to_a_plane_reconstructs_over_an_estimated_signed_range() 
     assert!(e_bad < 14.0, "{e_bad}");
     // Searched from 0, every point beyond the plane is lost.
     let mut unsigned = pipeline.clone();
-    unsigned.automatic_search_range = false;
-    unsigned.registration.range = DisparityRange::new(0, 16).unwrap();
+    unsigned.disparities = fixed(DisparityRange::new(0, 16).unwrap());
     let clipped = reconstruct(&rig, &captures, &unsigned, &|_, _, _| {}).unwrap();
     let (c_ref, _, _, c_bad) = measure(&clipped, &simulation, &rig);
     // Measured: 21.44 dB, 17.3 %.
@@ -636,7 +640,7 @@ material = { pattern = "grating", period_mm = 8, angle_deg = 0, srgb = [0.9, 0.3
             MatchingCost::Learned(&network),
             None,
         );
-        pipeline.registration.range = DisparityRange::up_to(32).unwrap();
+        pipeline.disparities = fixed(DisparityRange::up_to(32).unwrap());
         pipeline.matching_image = matching_image;
         let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
         assert_eq!(

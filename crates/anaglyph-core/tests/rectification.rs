@@ -7,9 +7,11 @@
 
 use anaglyph_core::evaluation::score_cube;
 use anaglyph_core::io::{OutputFolder, Replace};
-use anaglyph_core::reconstruct::{reconstruct, ArrayCaptures, PipelineSettings};
+use anaglyph_core::reconstruct::{
+    reconstruct, ArrayCaptures, Disparities, DisparitySearch, PipelineSettings,
+};
 use anaglyph_core::rectify::{Calibration, CameraModel, Rectification};
-use anaglyph_core::register::{RegistrationMode, RegistrationSettings};
+use anaglyph_core::register::RegistrationMode;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{Scene, SceneFile};
 use anaglyph_core::simulate::{write_simulation, PoseJitter, Simulation, SimulationSettings};
@@ -175,13 +177,8 @@ fn true_disparities_hold_again_after_rectification() {
     let jittered = simulate(Some(JITTER), true);
     let ideal = simulate(None, true);
     let settings = PipelineSettings {
-        registration: RegistrationSettings {
-            mode: RegistrationMode::Pairwise,
-            cost: MatchingCost::Census,
-            range: DisparityRange::up_to(16).unwrap(),
-        },
-        automatic_search_range: false,
-        given_disparities: Some(ideal.disparity_maps()),
+        registration: RegistrationMode::Pairwise,
+        disparities: Disparities::Given(ideal.disparity_maps()),
         solve: SolveSettings::paper(),
         views: Some(vec!["r0c0".into(), "r1c2".into()]),
         ..PipelineSettings::new(MatchingCost::Census)
@@ -235,13 +232,11 @@ fn true_disparities_hold_again_after_rectification() {
 fn a_rectified_array_registers_almost_as_well_as_an_ideal_one() {
     let network = anaglyph_core::stereo::MatchingNetwork::default_fast().unwrap();
     let settings = PipelineSettings {
-        registration: RegistrationSettings {
-            mode: RegistrationMode::MultiBaseline,
-            cost: MatchingCost::Learned(&network),
-            range: DisparityRange::up_to(16).unwrap(),
-        },
-        automatic_search_range: false,
-        given_disparities: None,
+        registration: RegistrationMode::MultiBaseline,
+        cost: MatchingCost::Learned(&network),
+        disparities: Disparities::Search(DisparitySearch::Fixed(
+            DisparityRange::up_to(16).unwrap(),
+        )),
         solve: SolveSettings::paper(),
         views: Some(vec!["r0c0".into()]),
         ..PipelineSettings::new(MatchingCost::Census)

@@ -6,12 +6,13 @@ use crate::compute::run_cancellable;
 use crate::errors::{to_py, type_error, IntoPyResult};
 use crate::rig::Rig;
 use anaglyph_core::choice::Choice;
+use anaglyph_core::demux::Solver;
 use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
 use anaglyph_core::io::read_linear_image;
 use anaglyph_core::reconstruct::{
-    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, PipelineSettings, Preset,
-    Products, Stage,
+    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, DisparitySearch, Preset,
+    Products, ReconstructOptions, SolveTuning, Stage,
 };
 use anaglyph_core::rectify::{Calibration, Homography};
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
@@ -178,10 +179,10 @@ fn array_captures(
 }
 
 /// The search range: "auto" or (min, max).
-fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<Option<DisparityRange>> {
+fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
     if let Ok(text) = disp_range.extract::<String>() {
         if text == "auto" {
-            return Ok(None);
+            return Ok(DisparitySearch::Auto);
         }
         return Err(to_py(Error::mismatch(
             "disp_range",
@@ -192,15 +193,20 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<Option<DisparityRange
     let (min, max): (i32, i32) = disp_range.extract().map_err(|_| {
         type_error("disp_range: expected \"auto\" or a (min, max) pair of integers")
     })?;
-    DisparityRange::new(min, max).py().map(Some)
+    DisparityRange::new(min, max)
+        .py()
+        .map(DisparitySearch::Fixed)
 }
 
-/// Reconstructs the light field of `captures` (see the Python wrapper's docs).
+/// Reconstructs the light field of `captures` (see the Python wrapper's docs). The
+/// keyword arguments fill the core's `ReconstructOptions`, the CLI's options by the same
+/// names; `tuning` is a JSON object of its `SolveTuning` fields.
 #[pyfunction]
 #[pyo3(signature = (rig, captures, whites=None, darks=None, calibration=None, views=None,
                     preset="default", output="cube", disp_range=None, method="mccnn",
-                    model=None, registration="multi-baseline", matching_image=None,
-                    warp_kernel=None, white_reflectance=None, saturation=None, progress=None))]
+                    model=None, registration="multi-baseline", solver="exact",
+                    matching_image=None, warp_kernel=None, white_reflectance=None,
+                    saturation=None, tuning=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -216,32 +222,48 @@ pub fn reconstruct<'py>(
     method: &str,
     model: Option<PathBuf>,
     registration: &str,
+    solver: &str,
     matching_image: Option<&str>,
     warp_kernel: Option<&str>,
     white_reflectance: Option<f64>,
     saturation: Option<f32>,
+    tuning: Option<&str>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let rig = &rig.inner;
-    let preset = Preset::parse_choice(preset).py()?;
-    let products = Products::parse_choice(output).py()?;
-    let method = MatchMethod::parse_choice(method).py()?;
-    let registration = RegistrationMode::parse_choice(registration).py()?;
-    let matching_image = matching_image
-        .map(MatchingImage::parse_choice)
-        .transpose()
-        .py()?;
-    let warp_kernel = warp_kernel.map(WarpKernel::parse_choice).transpose().py()?;
-    let range = match disp_range {
-        None => None,
-        Some(r) => search_range(r)?,
+    let defaults = ReconstructOptions::default();
+    let options = ReconstructOptions {
+        preset: Preset::parse_choice(preset).py()?,
+        registration: RegistrationMode::parse_choice(registration).py()?,
+        method: MatchMethod::parse_choice(method).py()?,
+        model,
+        disp_range: match disp_range {
+            None => DisparitySearch::Auto,
+            Some(r) => search_range(r)?,
+        },
+        output: Products::parse_choice(output).py()?,
+        views,
+        white_reflectance: white_reflectance.unwrap_or(defaults.white_reflectance),
+        saturation: saturation.unwrap_or(defaults.saturation),
+        solver: Solver::parse_choice(solver).py()?,
+        matching_image: matching_image
+            .map(MatchingImage::parse_choice)
+            .transpose()
+            .py()?,
+        warp_kernel: warp_kernel.map(WarpKernel::parse_choice).transpose().py()?,
+        tuning: tuning
+            .map(SolveTuning::from_json)
+            .transpose()
+            .py()?
+            .unwrap_or_default(),
     };
-    if let Some(views) = &views {
+    if let Some(views) = &options.views {
         for name in views {
             rig.camera_index(name).py()?;
         }
     }
+    options.validate().py()?;
     let captures = array_captures(rig, captures, whites, darks, calibration)?;
     let loading_seconds = started.elapsed().as_secs_f64();
     let cancel = AtomicBool::new(false);
@@ -258,49 +280,14 @@ pub fn reconstruct<'py>(
         });
     };
     let outcome = run_cancellable(py, Some(&cancel), || {
-        let network = method.network(model.as_deref())?;
-        let cost = method.cost(network.as_ref())?;
-        let mut settings = PipelineSettings::with_preset(cost, preset);
-        settings.registration.mode = registration;
-        if let Some(range) = range {
-            settings.registration.range = range;
-            settings.automatic_search_range = false;
-        }
-        settings.keep_registered = products.registered();
-        if let Some(v) = white_reflectance {
-            settings.white_reflectance = v;
-        }
-        if let Some(v) = saturation {
-            settings.saturation_level = v;
-        }
-        if let Some(m) = matching_image {
-            settings.matching_image = m;
-        }
-        if let Some(k) = warp_kernel {
-            settings.warp_kernel = k;
-        }
-        settings.views = views.clone();
+        let network = options.network()?;
+        let mut settings = options.settings(network.as_ref())?;
         settings.cancel = Some(&cancel);
-        settings.validate()?;
         let field = core_reconstruct(rig, &captures, &settings, &report)?;
-        let parameters = serde_json::json!({
-            "interface": "python",
-            "preset": preset.name(),
-            "output": products.name(),
-            "registration": registration.name(),
-            "method": method.name(),
-            "model": model.as_ref().map(|p| p.display().to_string()),
-            "disp_range": match range {
-                Some(r) => serde_json::json!(r),
-                None => serde_json::json!("auto"),
-            },
-            "white_reflectance": settings.white_reflectance,
-            "saturation": settings.saturation_level,
-            "matching_image": settings.matching_image,
-            "warp_kernel": settings.warp_kernel,
-            "lambda": rig.file.reconstruction.lambda,
-            "out_of_band": rig.file.reconstruction.out_of_band,
-        });
+        let mut parameters = options.record(&settings, rig);
+        if let Some(record) = parameters.as_object_mut() {
+            record.insert("interface".into(), "python".into());
+        }
         let manifest = field.manifest(parameters, loading_seconds)?;
         Ok((field, manifest))
     });
@@ -314,7 +301,7 @@ pub fn reconstruct<'py>(
     let stack_channels = field.channel_labels.len();
     for view in field.views {
         let v = PyDict::new(py);
-        if products.cubes() {
+        if options.output.cubes() {
             v.set_item("cube", array(py, &[h, w, bands], view.reflectance)?)?;
         }
         v.set_item("disparity", array(py, &[h, w], view.disparity.data)?)?;

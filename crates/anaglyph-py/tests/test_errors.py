@@ -65,6 +65,10 @@ def test_options_are_checked_before_any_work(tabletop):
         anaglyph.reconstruct(*args, views=["r5c5"], progress=False)
     with pytest.raises(anaglyph.OutOfRangeError, match="white reflectance"):
         anaglyph.reconstruct(*args, whites=tabletop.whites, white_reflectance=1.5, progress=False)
+    with pytest.raises(anaglyph.ParseError, match="refine_radios"):
+        anaglyph.reconstruct(*args, tuning={"refine_radios": 3}, progress=False)
+    with pytest.raises(anaglyph.NotFoundError, match="lsqr"):
+        anaglyph.reconstruct(*args, solver="qr", progress=False)
     with pytest.raises(TypeError, match="captures"):
         anaglyph.reconstruct(tabletop.rig, list(tabletop.captures.values()), progress=False)
 

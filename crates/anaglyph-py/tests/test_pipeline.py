@@ -91,6 +91,24 @@ def test_registered_stacks_of_a_monochrome_array_are_the_cli_s_bytes(cli, tmp_pa
     assert len(rec.channel_labels) == 9 and rec.channel_labels[0].startswith("r0c0")
 
 
+def test_tuning_reaches_the_solve_as_the_cli_s_options_do(cli, tmp_path, tabletop):
+    sim, rec = tmp_path / "sim", tmp_path / "rec"
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(tabletop.rig.to_toml())
+    run_cli(cli, "simulate", "--scene", "tabletop", "--rig", str(rig_file),
+            "--size", f"{SIZE[0]}x{SIZE[1]}", "--out", str(sim))
+    run_cli(cli, "reconstruct", "--rig", str(sim / "rig.toml"), "--out", str(rec), "--views", "r1c2",
+            "--preset", "fast", "--no-refine", "--scene-prior-clusters", "4", "--disp-range", "-2:20",
+            "--solver", "lsqr")
+    tuned = anaglyph.reconstruct(tabletop.rig, tabletop.captures, whites=tabletop.whites, views=["r1c2"],
+                                 preset="fast", tuning={"no_refine": True, "scene_prior_clusters": 4},
+                                 disp_range=(-2, 20), solver="lsqr", progress=False)
+    cube, _, _ = anaglyph.read_envi(rec / "views" / "r1c2.hdr")
+    assert cube.tobytes() == tuned["r1c2"].cube.tobytes()
+    assert tuned.manifest["parameters"]["refinement"] is None
+    assert tuned.manifest["parameters"]["scene_prior"]["clusters"] == 4
+
+
 def test_to_xarray_labels_the_light_field(reconstruction):
     xr = pytest.importorskip("xarray")
     ds = reconstruction.to_xarray()

@@ -26,6 +26,7 @@ mod capture_checks;
 mod dark_level;
 mod flat_field;
 mod inputs;
+mod options;
 mod output;
 mod preview;
 mod probe_plot;
@@ -42,11 +43,13 @@ pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
     UNEVEN_WHITE_WARNING,
 };
+pub use options::{ReconstructOptions, SolveTuning};
 pub use output::{write_light_field, OutputOptions, Products};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
 pub use settings::{
-    PipelineSettings, Preset, DEFAULT_MAX_DISP, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
+    Disparities, DisparitySearch, PipelineSettings, Preset, DEFAULT_MAX_DISP,
+    DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
 };
 pub use summary::ViewSummary;
 
@@ -156,14 +159,9 @@ pub fn reconstruct(
 ) -> Result<LightField> {
     settings.validate()?;
     check_captures_follow_rig(rig, captures)?;
-    if !settings.automatic_search_range && settings.given_disparities.is_none() {
+    if let Disparities::Search(DisparitySearch::Fixed(range)) = settings.disparities {
         let geometry = ArrayGeometry::of_rig(rig);
-        check_search_range(
-            settings.registration.range,
-            &geometry,
-            captures.width,
-            captures.height,
-        )?;
+        check_search_range(range, &geometry, captures.width, captures.height)?;
     }
     check_capture_signal(captures, settings.saturation_level)?;
     let requested = requested_views(rig, settings.views.as_deref())?;

@@ -6,8 +6,10 @@
 //! column step, NaN where unknown), the search range when it was estimated, the common
 //! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
 
-use super::{ArrayCaptures, CalibratedArray, PipelineSettings, RunLog, Stage};
-use crate::disparity::{DisparityConvention, DisparityMap};
+use super::{
+    ArrayCaptures, CalibratedArray, Disparities, DisparitySearch, PipelineSettings, RunLog, Stage,
+};
+use crate::disparity::{DisparityConvention, DisparityMap, DisparityRange};
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
     pair_agreements, register_views, ArrayGeometry, CommonSignal, MatchingImage, PairAgreement,
@@ -41,9 +43,12 @@ pub(super) fn register_array(
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
     let geometry = ArrayGeometry::of_rig(rig);
-    let mut registered = match &settings.given_disparities {
-        Some(given) => given_maps(given, rig, captures)?,
-        None => estimate_maps(captures, calibrated, &geometry, settings, log, progress)?,
+    let mut registered = match &settings.disparities {
+        Disparities::Given(given) => given_maps(given, rig, captures)?,
+        Disparities::Search(search) => {
+            let search = (*search, &geometry);
+            estimate_maps(captures, calibrated, search, settings, log, progress)?
+        }
     };
     let (w, h) = (captures.width, captures.height);
     let maps = &registered.disparities;
@@ -80,26 +85,28 @@ fn given_maps(
     })
 }
 
-/// Registration of the captures, over an estimated search range when asked.
+/// Registration of the captures over `search`'s range, estimated when asked.
 fn estimate_maps(
     captures: &ArrayCaptures,
     calibrated: &CalibratedArray,
-    geometry: &ArrayGeometry,
+    (search, geometry): (DisparitySearch, &ArrayGeometry),
     settings: &PipelineSettings<'_>,
     log: &mut RunLog,
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
     let (matching, common) = matching_images(calibrated, settings)?;
     let images = view_images(captures, matching);
-    let mut registration_settings = settings.registration;
-    let mut search_range = None;
-    if settings.automatic_search_range {
-        let range = estimate_search_range(&images, geometry, &registration_settings)?;
-        registration_settings.range = range.range;
-        log.timings
-            .push(("search range".to_string(), range.seconds));
-        search_range = Some(range);
-    }
+    let (registration_settings, search_range) = match search {
+        DisparitySearch::Fixed(range) => (settings.registration_over(range), None),
+        DisparitySearch::Auto => {
+            // The estimate searches a coarse range of its own.
+            let coarse = settings.registration_over(DisparityRange::up_to(2)?);
+            let range = estimate_search_range(&images, geometry, &coarse)?;
+            log.timings
+                .push(("search range".to_string(), range.seconds));
+            (settings.registration_over(range.range), Some(range))
+        }
+    };
     let registration =
         register_views(&images, geometry, &registration_settings, &|done, total| {
             progress(Stage::Registration, done, total)
@@ -128,7 +135,7 @@ fn matching_images(
 ) -> Result<MatchingImages> {
     let views = &calibrated.views;
     let by_common_signals = settings.matching_image == MatchingImage::CommonSignals
-        && settings.registration.mode == RegistrationMode::MultiBaseline;
+        && settings.registration == RegistrationMode::MultiBaseline;
     if !by_common_signals {
         return Ok((vec![Vec::new(); views.len()], None));
     }

@@ -3,7 +3,9 @@
 
 use crate::demux::DemuxOptions;
 use crate::disparity::{DisparityMap, DisparityRange};
-use crate::register::{MatchingImage, RegistrationSettings, WarpKernel, DEFAULT_REGISTRATION};
+use crate::register::{
+    MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel, DEFAULT_REGISTRATION,
+};
 use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::MatchingCost;
 use crate::{Error, Result};
@@ -77,19 +79,47 @@ impl Preset {
     }
 }
 
+/// The disparities registration searches, per column step of the array.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DisparitySearch {
+    /// Chosen from the captures ([`crate::register::estimate_search_range`]).
+    #[default]
+    Auto,
+    Fixed(DisparityRange),
+}
+
+impl Serialize for DisparitySearch {
+    /// `"auto"` or `{"min": .., "max": ..}`, as manifests record it.
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            DisparitySearch::Auto => s.serialize_str("auto"),
+            DisparitySearch::Fixed(range) => range.serialize(s),
+        }
+    }
+}
+
+/// Where every view's disparity map comes from.
+#[derive(Debug, Clone)]
+pub enum Disparities {
+    /// Registration of the captures.
+    Search(DisparitySearch),
+    /// Maps to use instead of registration (one per camera, rig order, per column step),
+    /// e.g. the simulator's truth to measure what registration costs.
+    Given(Vec<DisparityMap>),
+}
+
 /// Everything reconstruction can be told.
 #[derive(Debug, Clone)]
 pub struct PipelineSettings<'a> {
-    pub registration: RegistrationSettings<'a>,
-    /// Choose `registration.range` from the captures
-    /// ([`crate::register::estimate_search_range`]).
-    pub automatic_search_range: bool,
+    /// How views are registered.
+    pub registration: RegistrationMode,
+    /// The matching cost registration uses.
+    pub cost: MatchingCost<'a>,
+    /// Where the disparity maps come from.
+    pub disparities: Disparities,
     /// What multi-baseline registration compares the views by (pairwise registration
     /// always matches luminance).
     pub matching_image: MatchingImage,
-    /// Disparity maps to use instead of registration (one per camera, rig order, per
-    /// column step), e.g. the simulator's truth to measure what registration costs.
-    pub given_disparities: Option<Vec<DisparityMap>>,
     /// Reflectance of the white board.
     pub white_reflectance: f64,
     /// Capture values at or above this fraction of full scale are saturated.
@@ -122,17 +152,10 @@ impl<'a> PipelineSettings<'a> {
     /// [`PipelineSettings::new`] with the stages and tuning of `preset`.
     pub fn with_preset(cost: MatchingCost<'a>, preset: Preset) -> Self {
         PipelineSettings {
-            registration: RegistrationSettings {
-                mode: DEFAULT_REGISTRATION,
-                cost,
-                range: DisparityRange {
-                    min: 0,
-                    max: DEFAULT_MAX_DISP,
-                },
-            },
-            automatic_search_range: true,
+            registration: DEFAULT_REGISTRATION,
+            cost,
+            disparities: Disparities::Search(DisparitySearch::Auto),
             matching_image: preset.matching_image(),
-            given_disparities: None,
             white_reflectance: DEFAULT_WHITE_REFLECTANCE,
             saturation_level: DEFAULT_SATURATION_LEVEL,
             warp_kernel: preset.warp_kernel(),
@@ -155,6 +178,15 @@ impl<'a> PipelineSettings<'a> {
         }
     }
 
+    /// The registration settings over `range`.
+    pub fn registration_over(&self, range: DisparityRange) -> RegistrationSettings<'a> {
+        RegistrationSettings {
+            mode: self.registration,
+            cost: self.cost,
+            range,
+        }
+    }
+
     /// Checks every number before any work.
     pub fn validate(&self) -> Result<()> {
         if !(self.white_reflectance > 0.0 && self.white_reflectance <= 1.0) {
@@ -171,8 +203,7 @@ impl<'a> PipelineSettings<'a> {
                 expected: "in (0, 1]".into(),
             });
         }
-        if self.given_disparities.is_none() {
-            let range = self.registration.range;
+        if let Disparities::Search(DisparitySearch::Fixed(range)) = self.disparities {
             DisparityRange::new(range.min, range.max)?;
         }
         self.solve.validate()

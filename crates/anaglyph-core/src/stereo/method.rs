@@ -14,7 +14,8 @@ use std::path::Path;
 pub const MUTUAL_INFORMATION_ITERATIONS: usize = 3;
 
 /// A matching method by name.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum MatchMethod {
     /// The learned cross-spectral cost, MC-CNN fast (weights built in).
     #[default]

@@ -163,10 +163,12 @@ def reconstruct(
     method: str = "mccnn",
     model: _Path | None = None,
     registration: str = "multi-baseline",
+    solver: str = "exact",
     matching_image: str | None = None,
     warp_kernel: str | None = None,
     white_reflectance: float | None = None,
     saturation: float | None = None,
+    tuning: str | None = None,
     progress: Callable[[str, int, int], object] | None = None,
 ) -> dict[str, Any]: ...
 def read_envi(path: _Path) -> tuple[npt.NDArray[np.float32], list[float] | None, list[str] | None]: ...

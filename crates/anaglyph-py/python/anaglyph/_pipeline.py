@@ -3,6 +3,7 @@ tqdm progress bars, ``logging`` for warnings, and ``xarray`` export."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -245,10 +246,12 @@ def reconstruct(
     method: str = "mccnn",
     model: PathLike | None = None,
     registration: str = "multi-baseline",
+    solver: str = "exact",
     matching_image: str | None = None,
     warp_kernel: str | None = None,
     white_reflectance: float | None = None,
     saturation: float | None = None,
+    tuning: Mapping[str, Any] | None = None,
     progress: bool | Progress = True,
 ) -> Reconstruction:
     """The multispectral light field of an array's captures (``anaglyph reconstruct``, in
@@ -259,7 +262,9 @@ def reconstruct(
     calibration file, or the folder ``anaglyph calibrate`` wrote. ``views``: the cameras
     whose views to reconstruct (default all). ``preset``: ``default``, ``fast`` or
     ``paper``. ``output``: ``cube``, ``registered`` or ``both``. ``disp_range``: ``"auto"``
-    or ``(min, max)`` per column step. ``progress``: a tqdm bar (True), none (False) or a
+    or ``(min, max)`` per column step. The other options are the CLI's by the same names;
+    ``tuning`` holds the solve's tuning options (``{"no_refine": True, "scene_prior_clusters":
+    8}``: ``reconstruct --help``'s Tuning options with underscores). ``progress``: a tqdm bar (True), none (False) or a
     callable ``(stage, done, total)``; an exception it raises stops the run at the next
     stage boundary and is raised here, as is a KeyboardInterrupt. Warnings go to the
     ``anaglyph`` logger.
@@ -291,10 +296,12 @@ def reconstruct(
             method=method,
             model=os.fspath(model) if model is not None else None,
             registration=registration,
+            solver=solver,
             matching_image=matching_image,
             warp_kernel=warp_kernel,
             white_reflectance=white_reflectance,
             saturation=saturation,
+            tuning=json.dumps(dict(tuning)) if tuning is not None else None,
             progress=callback,
         )
     finally:
