@@ -339,7 +339,8 @@ pub struct RigInitArgs {
 pub struct RigShowArgs {
     /// The rig file.
     pub rig: PathBuf,
-    /// Where to write the response plot (SVG); default: beside the rig as <stem>-responses.svg.
+    /// Where to write the response plot (SVG); default: <stem>-responses.svg beside the rig,
+    /// or in the working folder when the rig is in a folder anaglyph wrote.
     #[arg(long)]
     pub plot: Option<PathBuf>,
     /// Also write the sensing matrix C (rows × unknowns, f64) as .npy for `anaglyph demux`.

@@ -5,6 +5,10 @@ use anaglyph_core::filters::calibrate_filter;
 use anaglyph_core::spectrum::ResponseCurve;
 
 pub fn run(args: CalibrateFilterArgs) -> anyhow::Result<()> {
+    super::check_output_files(
+        &[("--out", &args.out)],
+        &[("--without", &args.without), ("--with", &args.with_filter)],
+    )?;
     let without = ResponseCurve::load_csv(&args.without)?;
     let with = ResponseCurve::load_csv(&args.with_filter)?;
     let cal = calibrate_filter(&without, &with, args.relative_error)?;

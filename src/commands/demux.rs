@@ -98,7 +98,21 @@ fn print_report(report: &DemuxReport) {
 
 pub fn run(args: DemuxArgs) -> anyhow::Result<()> {
     let start = Instant::now();
-    super::check_output_file(&args.out, "--out")?;
+    let data_file = args.out.with_extension("img");
+    let envi_out = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
+    let mut outputs = vec![("--out", args.out.as_path())];
+    if envi_out {
+        outputs.push(("--out (its ENVI data file)", data_file.as_path()));
+    }
+    let mut inputs = vec![
+        ("--sensing", args.sensing.as_path()),
+        ("--measurements", args.measurements.as_path()),
+    ];
+    inputs.extend(args.mask.as_deref().map(|p| ("--mask", p)));
+    super::check_output_files(&outputs, &inputs)?;
     let (rows, n, c) = read_sensing(&args.sensing)?;
     if rows == 0 || n == 0 {
         bail!(

@@ -2,7 +2,7 @@
 //! written as PFM (+inf where invalid), with an optional colour-mapped preview and a JSON
 //! report of the settings and per-stage timings.
 
-use super::{check_output_file, format_seconds};
+use super::{check_output_files, format_seconds};
 use crate::cli::MatchArgs;
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
@@ -18,6 +18,15 @@ fn load_grey(path: &Path, channel: GreyChannel) -> anyhow::Result<GreyImage> {
 
 pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     let started = Instant::now();
+    let mut outputs = vec![("--out", args.out.as_path())];
+    outputs.extend(args.preview.as_deref().map(|p| ("--preview", p)));
+    outputs.extend(args.report.as_deref().map(|p| ("--report", p)));
+    let mut inputs = vec![
+        ("--left", args.left.as_path()),
+        ("--right", args.right.as_path()),
+    ];
+    inputs.extend(args.model.as_deref().map(|p| ("--model", p)));
+    check_output_files(&outputs, &inputs)?;
     let left = load_grey(&args.left, args.channel)?;
     let right = load_grey(&args.right, args.channel)?;
     if (left.width, left.height) != (right.width, right.height) {
@@ -44,13 +53,6 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
             range.magnitude(),
             left.width
         );
-    }
-    check_output_file(&args.out, "--out")?;
-    let side_outputs = [("--preview", &args.preview), ("--report", &args.report)];
-    for (option, path) in side_outputs {
-        if let Some(path) = path {
-            check_output_file(path, option)?;
-        }
     }
     let network = args.method.network(args.model.as_deref())?;
     let cost = args.method.cost(network.as_ref())?;

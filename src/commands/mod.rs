@@ -88,6 +88,72 @@ pub fn check_output_file(path: &std::path::Path, option: &str) -> anyhow::Result
     Ok(())
 }
 
+/// The file `path` names, as a canonical path: its own if it exists (links resolved),
+/// else its folder's joined with its name.
+fn file_identity(path: &std::path::Path) -> Option<std::path::PathBuf> {
+    if let Ok(canonical) = path.canonicalize() {
+        return Some(canonical);
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    Some(parent.canonicalize().ok()?.join(path.file_name()?))
+}
+
+/// Checks, before any work, every file a command writes (option, path): each can be
+/// written ([`check_output_file`]), none is one of the command's `inputs` (option, path)
+/// and no two name the same file (by canonical path, links resolved), so that no input
+/// is overwritten and no output replaces another.
+pub fn check_output_files(
+    outputs: &[(&str, &std::path::Path)],
+    inputs: &[(&str, &std::path::Path)],
+) -> anyhow::Result<()> {
+    for (option, path) in outputs {
+        check_output_file(path, option)?;
+    }
+    let known = |list: &[(&str, &std::path::Path)]| -> Vec<(String, std::path::PathBuf, std::path::PathBuf)> {
+        list.iter()
+            .filter_map(|(o, p)| file_identity(p).map(|id| (o.to_string(), p.to_path_buf(), id)))
+            .collect()
+    };
+    let (outs, ins) = (known(outputs), known(inputs));
+    for (k, (option, path, id)) in outs.iter().enumerate() {
+        if let Some((input, input_path, _)) = ins.iter().find(|(_, _, i)| i == id) {
+            anyhow::bail!(
+                "{option} {}: is the input {input} {} (expected a new file; writing it would \
+                 overwrite the input)",
+                path.display(),
+                input_path.display()
+            );
+        }
+        if let Some((other, other_path, _)) = outs[..k].iter().find(|(_, _, o)| o == id) {
+            anyhow::bail!(
+                "{option} {}: is also {other} {} (expected a different file for each output)",
+                path.display(),
+                other_path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The curve files (CSV) a rig's sensor, illuminant and filters name.
+pub fn rig_curve_files(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf> {
+    let f = &rig.file;
+    let references = std::iter::once(Some(&f.sensor))
+        .chain(std::iter::once(f.illuminant.as_ref()))
+        .chain(
+            f.cameras
+                .iter()
+                .flat_map(|c| [Some(&c.filter), c.sensor.as_ref()]),
+        );
+    references
+        .flatten()
+        .filter_map(|r| anaglyph_core::rig::curve_file(r, &rig.base_dir))
+        .collect()
+}
+
 /// Every file a rig names (captures, white boards, calibrations, dark frames), resolved:
 /// inputs an output folder must not hold.
 pub fn rig_inputs(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf> {

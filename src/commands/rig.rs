@@ -1,8 +1,8 @@
 //! `anaglyph rig init` (the paper's 2×4 rig with selected filters) and `anaglyph rig show`
 //! (the rig, cond(C), out-of-band light, a plot of the effective responses).
 
-use super::optional_curve;
 use super::select_filters::{load_candidates, print_report, run_selection, SelectionInputs};
+use super::{check_output_files, optional_curve, rig_curve_files};
 use crate::cli::{RigCommand, RigInitArgs, RigShowArgs};
 use anaglyph_core::capture::CameraNoise;
 use anaglyph_core::filters::SelectionOptions;
@@ -25,6 +25,13 @@ fn init(args: RigInitArgs) -> anyhow::Result<()> {
     if args.out.exists() && !args.force {
         bail!("{} exists (use --force to overwrite)", args.out.display());
     }
+    let here = Path::new(".");
+    let curves: Vec<_> = [&args.sensor, &args.illuminant]
+        .into_iter()
+        .filter_map(|r| anaglyph_core::rig::curve_file(r, here))
+        .collect();
+    let inputs: Vec<(&str, &Path)> = curves.iter().map(|p| ("curve", p.as_path())).collect();
+    check_output_files(&[("--out", &args.out)], &inputs)?;
     let inputs = SelectionInputs {
         candidates: load_candidates(None)?,
         sensor: resolve_curve(&args.sensor, Path::new("."))?,
@@ -61,6 +68,16 @@ fn init(args: RigInitArgs) -> anyhow::Result<()> {
 
 fn show(args: RigShowArgs) -> anyhow::Result<()> {
     let rig = Rig::load(&args.rig)?;
+    let plot = args
+        .plot
+        .clone()
+        .unwrap_or_else(|| default_plot_path(&args.rig));
+    let mut outputs = vec![("--plot", plot.as_path())];
+    outputs.extend(args.export_c.as_deref().map(|p| ("--export-c", p)));
+    let curves = rig_curve_files(&rig);
+    let mut inputs = vec![("--rig", args.rig.as_path())];
+    inputs.extend(curves.iter().map(|p| ("the rig's curve", p.as_path())));
+    check_output_files(&outputs, &inputs)?;
     let f = &rig.file;
     let shape = rig.reconstruction_shape()?;
     let layout = match (f.rows, f.cols, f.baseline_mm) {
@@ -143,10 +160,6 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
         100.0 * worst,
         100.0 * inside.iter().map(|f| 1.0 - f).sum::<f64>() / inside.len() as f64
     );
-    let plot = args
-        .plot
-        .clone()
-        .unwrap_or_else(|| default_plot_path(&args.rig));
     plot_effective_responses(
         &plot,
         &responses,
@@ -172,10 +185,21 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `<stem>-responses.svg` beside the rig, or in the working folder when the rig lies in
+/// a folder anaglyph wrote (a file added there would make the folder fail verification
+/// and stop the next run into it).
 fn default_plot_path(rig: &Path) -> PathBuf {
     let stem = rig
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "rig".into());
-    rig.with_file_name(format!("{stem}-responses.svg"))
+    let name = format!("{stem}-responses.svg");
+    let in_output_folder = rig
+        .parent()
+        .is_some_and(|dir| dir.join(anaglyph_core::io::MANIFEST).is_file());
+    if in_output_folder {
+        PathBuf::from(name)
+    } else {
+        rig.with_file_name(name)
+    }
 }

@@ -105,6 +105,15 @@ pub fn run(args: SelectFiltersArgs) -> anyhow::Result<()> {
     if !(args.full_well > 0.0 && args.read_noise >= 0.0) {
         bail!("--full-well must be > 0 and --read-noise >= 0");
     }
+    if let Some(json) = &args.json {
+        let here = Path::new(".");
+        let curves: Vec<_> = [&args.sensor, &args.illuminant]
+            .into_iter()
+            .filter_map(|r| anaglyph_core::rig::curve_file(r, here))
+            .collect();
+        let inputs: Vec<(&str, &Path)> = curves.iter().map(|p| ("curve", p.as_path())).collect();
+        super::check_output_files(&[("--json", json)], &inputs)?;
+    }
     let inputs = SelectionInputs {
         candidates: load_candidates(args.candidates.as_deref())?,
         sensor: resolve_curve(&args.sensor, Path::new("."))?,

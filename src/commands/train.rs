@@ -2,7 +2,7 @@
 //! progress bar and the held-out validation printed as it goes; writes safetensors with
 //! the recipe in the metadata.
 
-use super::{check_output_file, format_seconds};
+use super::{check_output_files, format_seconds};
 use crate::cli::{ArchitectureChoice, TrainArgs};
 use anaglyph_cnn::{train, Architecture, TrainSettings};
 use anaglyph_core::io::write_atomically;
@@ -25,16 +25,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         settings.learning_rate = lr;
     }
-    check_output_file(&args.out, "--out")?;
-    if let Some(path) = &args.curve {
-        check_output_file(path, "--curve")?;
-        if path == &args.out {
-            anyhow::bail!(
-                "--curve {}: the same file as --out (expected another file)",
-                path.display()
-            );
-        }
-    }
+    let mut outputs = vec![("--out", args.out.as_path())];
+    outputs.extend(args.curve.as_deref().map(|p| ("--curve", p)));
+    check_output_files(&outputs, &[])?;
     let command: Vec<String> = std::iter::once("anaglyph".to_string())
         .chain(std::env::args().skip(1))
         .collect();

@@ -125,6 +125,110 @@ fn a_folder_anaglyph_did_not_write_or_that_holds_the_inputs_is_refused() {
     assert_no_leftovers(d);
 }
 
+/// No command overwrites one of its inputs or writes two outputs to one file (paths
+/// compared canonically, links resolved), and a re-run never deletes what a user added
+/// to a folder anaglyph wrote.
+#[test]
+fn no_input_is_overwritten_and_no_user_file_deleted() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulate_into(d);
+    let (left, right) = ("sim/captures/r0c0.png", "sim/captures/r0c1.png");
+    let originals: Vec<Vec<u8>> = [left, right]
+        .iter()
+        .map(|p| std::fs::read(d.join(p)).unwrap())
+        .collect();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(d.join(right), d.join("alias.pfm")).unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["--out", left],
+            "--out sim/captures/r0c0.png: is the input --left",
+        ),
+        (
+            &["--out", "./sim/../sim/captures/r0c1.png"],
+            "is the input --right",
+        ),
+        (
+            &["--out", "d.pfm", "--preview", right],
+            "--preview sim/captures/r0c1.png: is the input --right",
+        ),
+        (&["--out", "d.pfm", "--report", left], "is the input --left"),
+        (
+            &["--out", "d.pfm", "--preview", "d.pfm"],
+            "--preview d.pfm: is also --out d.pfm",
+        ),
+        #[cfg(unix)]
+        (&["--out", "alias.pfm"], "is the input --right"),
+    ];
+    for (extra, needle) in cases {
+        let mut args = vec![
+            "match",
+            "--left",
+            left,
+            "--right",
+            right,
+            "--max-disp",
+            "8",
+            "--method",
+            "census",
+        ];
+        args.extend_from_slice(extra);
+        let o = anaglyph(&args, d);
+        assert_clean_failure(&o, needle);
+        assert!(!d.join("d.pfm").exists(), "{extra:?}: wrote an output");
+    }
+    for (path, original) in [left, right].iter().zip(&originals) {
+        assert_eq!(
+            &std::fs::read(d.join(path)).unwrap(),
+            original,
+            "{path} changed"
+        );
+    }
+    // demux and rig show alike.
+    let o = anaglyph(&["rig", "show", "sim/rig.toml", "--export-c", "c.npy"], d);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c = std::fs::read(d.join("c.npy")).unwrap();
+    let o = anaglyph(
+        &[
+            "demux",
+            "--sensing",
+            "c.npy",
+            "--measurements",
+            "c.npy",
+            "--out",
+            "c.npy",
+        ],
+        d,
+    );
+    assert_clean_failure(&o, "--out c.npy: is the input --sensing");
+    let o = anaglyph(
+        &["rig", "show", "sim/rig.toml", "--export-c", "sim/rig.toml"],
+        d,
+    );
+    assert_clean_failure(&o, "is the input --rig");
+    assert_eq!(std::fs::read(d.join("c.npy")).unwrap(), c);
+    verify_output_folder(&d.join("sim")).unwrap();
+
+    // A user's files in a folder anaglyph wrote stop the next run into it.
+    let o = reconstruct(d, "rec", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(d.join("rec/NOTES.txt"), "mine").unwrap();
+    let o = reconstruct(d, "rec", &[]);
+    assert_clean_failure(&o, "holds NOTES.txt, which its manifest does not list");
+    std::fs::remove_file(d.join("rec/NOTES.txt")).unwrap();
+    std::fs::create_dir(d.join("rec/mine")).unwrap();
+    std::fs::write(d.join("rec/mine/data.csv"), "1,2").unwrap();
+    let o = reconstruct(d, "rec", &[]);
+    assert_clean_failure(&o, "holds mine/");
+    assert_eq!(std::fs::read(d.join("rec/mine/data.csv")).unwrap(), b"1,2");
+    std::fs::remove_dir_all(d.join("rec/mine")).unwrap();
+    let o = reconstruct(d, "rec", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    verify_output_folder(&d.join("rec")).unwrap();
+    assert_no_leftovers(d);
+}
+
 /// SIGKILL at several moments of a re-run: the folder is always the previous complete
 /// one (or a newer complete one), and the next run removes what the killed ones left.
 #[test]

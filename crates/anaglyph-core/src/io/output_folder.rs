@@ -109,6 +109,10 @@ impl OutputFolder {
         let object = value
             .as_object_mut()
             .ok_or_else(|| Error::output(MANIFEST, "the manifest is not a JSON object (a bug)"))?;
+        // What marks the folder as anaglyph's, for the next run into it.
+        object
+            .entry("generator")
+            .or_insert_with(|| format!("anaglyph {}", env!("CARGO_PKG_VERSION")).into());
         object.insert("run_id".into(), self.run_id.clone().into());
         let files = serde_json::to_value(files).map_err(|e| Error::output(MANIFEST, e))?;
         object.insert("files".into(), files);
@@ -204,29 +208,77 @@ fn check_target(target: &Path, replace: Replace, inputs: &[&Path]) -> Result<()>
             }
         }
     }
-    if replace == Replace::OwnOutput && !is_empty_or_own(target)? {
-        return Err(refuse(
-            target,
-            "holds files anaglyph did not write (no anaglyph manifest.json); choose another \
-             folder or pass --force to replace it whole",
-        ));
+    if replace == Replace::OwnOutput {
+        if let Some(foreign) = foreign_entry(target)? {
+            return Err(refuse(
+                target,
+                format!(
+                    "{foreign}; anaglyph replaces only a folder it wrote, whole: choose another \
+                     folder, move that away, or pass --force to replace the folder whole"
+                ),
+            ));
+        }
     }
     Ok(())
 }
 
-/// An empty folder, or one whose manifest anaglyph wrote.
-fn is_empty_or_own(dir: &Path) -> Result<bool> {
+/// Why `dir` is not anaglyph's to replace (None: it is empty, or holds exactly what its
+/// anaglyph manifest lists): no anaglyph manifest, or the first entry the manifest does
+/// not list (a file or folder a user added, hidden ones included).
+fn foreign_entry(dir: &Path) -> Result<Option<String>> {
     let mut entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     if entries.next().is_none() {
-        return Ok(true);
+        return Ok(None);
     }
-    let Ok(text) = std::fs::read_to_string(dir.join(MANIFEST)) else {
-        return Ok(false);
-    };
-    let generator = serde_json::from_str::<serde_json::Value>(&text)
+    let manifest = std::fs::read_to_string(dir.join(MANIFEST))
         .ok()
-        .and_then(|v| v.get("generator")?.as_str().map(str::to_owned));
-    Ok(generator.is_some_and(|g| g.starts_with("anaglyph")))
+        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok());
+    let Some(manifest) = manifest.filter(|m| {
+        m.get("generator")
+            .and_then(|g| g.as_str())
+            .is_some_and(|g| g.starts_with("anaglyph"))
+    }) else {
+        return Ok(Some(
+            "holds files anaglyph did not write (no anaglyph manifest.json)".into(),
+        ));
+    };
+    let listed: std::collections::BTreeSet<String> = manifest
+        .get("files")
+        .and_then(|f| f.as_array())
+        .map(|files| {
+            files
+                .iter()
+                .filter_map(|f| f.get("path")?.as_str().map(str::to_owned))
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut pending = vec![(dir.to_path_buf(), String::new())];
+    while let Some((folder, prefix)) = pending.pop() {
+        let entries = std::fs::read_dir(&folder).map_err(|e| Error::io(&folder, e))?;
+        let mut names: Vec<_> = entries.flatten().collect();
+        names.sort_by_key(|e| e.file_name());
+        for entry in names {
+            let relative = format!("{prefix}{}", entry.file_name().to_string_lossy());
+            let is_dir = entry
+                .file_type()
+                .map_err(|e| Error::io(entry.path(), e))?
+                .is_dir();
+            if is_dir {
+                let inside = format!("{relative}/");
+                if !listed.iter().any(|f| f.starts_with(&inside)) {
+                    return Ok(Some(format!(
+                        "holds {relative}/, which its manifest does not list (not anaglyph's)"
+                    )));
+                }
+                pending.push((entry.path(), inside));
+            } else if relative != MANIFEST && !listed.contains(&relative) {
+                return Ok(Some(format!(
+                    "holds {relative}, which its manifest does not list (not anaglyph's)"
+                )));
+            }
+        }
+    }
+    Ok(None)
 }
 
 /// Removes `.NAME.partial-PID` and `.NAME.old-PID` folders of processes that no longer

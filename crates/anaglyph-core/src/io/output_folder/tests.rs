@@ -75,6 +75,53 @@ fn a_rerun_replaces_its_own_folder_whole() {
 }
 
 #[test]
+fn files_a_user_added_to_an_anaglyph_folder_are_never_deleted() {
+    let root = tempfile::tempdir().unwrap();
+    let target = root.path().join("out");
+    let first = OutputFolder::begin(&target, Replace::OwnOutput, &[]).unwrap();
+    finish(first, &[("views/r0c0.img", "old0")]);
+    for (added, named) in [
+        ("NOTES.txt", "NOTES.txt"),
+        ("mine/data.csv", "mine/"),
+        ("views/extra.csv", "views/extra.csv"),
+        (".hidden", ".hidden"),
+    ] {
+        let path = target.join(added);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, "user's").unwrap();
+        let refused = OutputFolder::begin(&target, Replace::OwnOutput, &[]);
+        let message = refused.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(message.contains(named), "{added}: {message}");
+        assert_eq!(std::fs::read(&path).unwrap(), b"user's");
+        std::fs::remove_file(&path).unwrap();
+        if added.starts_with("mine/") {
+            std::fs::remove_dir(target.join("mine")).unwrap();
+        }
+    }
+    // An empty folder a user made inside is theirs too.
+    std::fs::create_dir(target.join("empty")).unwrap();
+    assert!(OutputFolder::begin(&target, Replace::OwnOutput, &[]).is_err());
+    std::fs::remove_dir(target.join("empty")).unwrap();
+    // As anaglyph left it, the folder is replaced.
+    let second = OutputFolder::begin(&target, Replace::OwnOutput, &[]).unwrap();
+    finish(second, &[("views/r0c0.img", "new0")]);
+}
+
+#[test]
+fn a_manifest_without_a_generator_still_marks_the_folder_as_anaglyph_s() {
+    let root = tempfile::tempdir().unwrap();
+    let target = root.path().join("calib");
+    let first = OutputFolder::begin(&target, Replace::OwnOutput, &[]).unwrap();
+    std::fs::write(first.path().join("r0c0.json"), "{}").unwrap();
+    first
+        .write_manifest(&serde_json::json!({"pattern": "9x6"}))
+        .unwrap();
+    first.commit().unwrap();
+    let again = OutputFolder::begin(&target, Replace::OwnOutput, &[]).unwrap();
+    drop(again);
+}
+
+#[test]
 fn a_folder_anaglyph_did_not_write_is_refused_without_force() {
     let root = tempfile::tempdir().unwrap();
     let target = root.path().join("thesis");
