@@ -158,6 +158,16 @@ pub fn reconstruct(
     progress: &Progress<'_>,
 ) -> Result<LightField> {
     settings.validate()?;
+    if rig.cameras.len() < 2 {
+        return Err(Error::mismatch(
+            format!("rig '{}'", rig.file.name),
+            format!(
+                "one camera ({})",
+                rig.cameras.first().map_or("none", |c| c.name.as_str())
+            ),
+            "an array of at least two cameras (a light field needs views to register)",
+        ));
+    }
     check_captures_follow_rig(rig, captures)?;
     if let Disparities::Search(DisparitySearch::Fixed(range)) = settings.disparities {
         let geometry = ArrayGeometry::of_rig(rig);

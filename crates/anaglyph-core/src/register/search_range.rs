@@ -107,7 +107,14 @@ pub fn estimate_search_range(
     };
     let coarse: Vec<ViewImage> = images.iter().map(|v| downsample(v, factor)).collect();
     let coarse_w = w / factor;
-    let coarse_max = ((coarse_w as f64 / span) as usize).clamp(4, MAX_COARSE_DISPARITY);
+    // As many coarse disparities as the array's span allows, and no more than every
+    // neighbour's shift fits in the coarse images (a two-camera array spans one baseline:
+    // the first bound alone reached the images' whole width).
+    let shift = geometry.longest_neighbour_shift().max(1.0);
+    let fitting = ((coarse_w.min(h / factor).saturating_sub(1)) as f64 / shift) as usize;
+    let coarse_max = ((coarse_w as f64 / span) as usize)
+        .min(fitting)
+        .clamp(4, MAX_COARSE_DISPARITY);
     let coarse_range =
         DisparityRange::new(-((coarse_max / NEGATIVE_SHARE) as i32), coarse_max as i32)?;
     if coarse_w < 16 || h / factor < 16 {
