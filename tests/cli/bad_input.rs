@@ -358,6 +358,25 @@ fn sizes_are_checked_against_limits_before_decoding_or_allocating() {
         .unwrap();
     assert_clean_failure(&o, "the memory needed in bytes (at least 45.8 GiB");
     assert!(!d.join("big").exists());
+    // match estimates its cost volume (and the network's features) before allocating:
+    // 128x96 px over 100 disparities with the learned cost is 164 values per pixel.
+    let o = Command::new(env!("CARGO_BIN_EXE_anaglyph"))
+        .args(["match", "--left", "sim/captures/r0c0.png", "--right"])
+        .args([
+            "sim/captures/r0c1.png",
+            "--disp-range=-20:80",
+            "--out",
+            "d.pfm",
+        ])
+        .env("ANAGLYPH_MAX_MEMORY", "4000000")
+        .current_dir(d)
+        .output()
+        .unwrap();
+    assert_clean_failure(
+        &o,
+        "matching 128x96 px over 100 disparities (-20:80; a smaller range or image needs less)",
+    );
+    assert!(!d.join("d.pfm").exists());
     assert_no_leftovers(d);
 }
 

@@ -74,3 +74,12 @@ def test_bad_ranges_and_pairs_are_refused():
         anaglyph.match(left, right, disp_range=(0, 16), method="sad")
     with pytest.raises(anaglyph.UnusableError, match="model"):
         anaglyph.match(left, right, disp_range=(0, 16), method="mccnn-accurate")
+
+
+def test_a_pair_too_large_for_memory_is_refused_before_allocating(monkeypatch):
+    left, right = textured_pair()
+    monkeypatch.setenv("ANAGLYPH_MAX_MEMORY", "100000")
+    with pytest.raises(MemoryError, match="a smaller range or image needs less"):
+        anaglyph.match(left, right, disp_range=(0, 16))
+    with pytest.raises(anaglyph.TooLargeError):
+        anaglyph.match(left, right, disp_range=(0, 16), method="census")

@@ -204,6 +204,26 @@ pub fn unit_range(image: &GreyImage) -> GreyImage {
     }
 }
 
+/// Refuses a pair whose matching would not fit in memory, before anything is allocated:
+/// at least the cost volume (a value per pixel and disparity) and, for a learned cost,
+/// one image's feature maps are held at once.
+fn check_memory(left: &GreyImage, cost: &MatchingCost<'_>, settings: &MatchSettings) -> Result<()> {
+    let pixels = (left.width * left.height) as u64;
+    let features = match cost {
+        MatchingCost::Learned(network) => network.feature_maps() as u64,
+        _ => 0,
+    };
+    let count = settings.range.count() as u64;
+    let values = pixels.saturating_mul(count.saturating_add(features));
+    crate::memory::check_fits(
+        &format!(
+            "matching {}x{} px over {} disparities ({}; a smaller range or image needs less)",
+            left.width, left.height, count, settings.range
+        ),
+        crate::memory::f32_bytes(values),
+    )
+}
+
 fn validate(left: &GreyImage, right: &GreyImage, range: DisparityRange) -> Result<()> {
     if left.width != right.width || left.height != right.height {
         return Err(Error::Shape {
@@ -245,6 +265,7 @@ pub fn match_pair(
     settings: &MatchSettings,
 ) -> Result<MatchOutput> {
     validate(left, right, settings.range)?;
+    check_memory(left, cost, settings)?;
     let (w, h, range) = (left.width, left.height, settings.range);
     let mut timings = Vec::new();
     let mut clock = Instant::now();
