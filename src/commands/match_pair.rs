@@ -6,6 +6,7 @@ use super::{check_output_files, format_seconds};
 use crate::cli::MatchArgs;
 use crate::progress::spinner;
 use anaglyph_core::io::{read_linear_image, write_atomically, write_disparity_preview, write_pfm};
+use anaglyph_core::reconstruct::check_signal;
 use anaglyph_core::stereo::{match_pair, DisparityRange, GreyChannel, GreyImage, MatchSettings};
 use std::path::Path;
 use std::time::Instant;
@@ -29,6 +30,13 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     check_output_files(&outputs, &inputs)?;
     let left = load_grey(&args.left, args.channel)?;
     let right = load_grey(&args.right, args.channel)?;
+    for (option, path, image) in [
+        ("--left", &args.left, &left),
+        ("--right", &args.right, &right),
+    ] {
+        let what = format!("{option} {}", path.display());
+        check_signal(image, f32::INFINITY, &what)?;
+    }
     if (left.width, left.height) != (right.width, right.height) {
         anyhow::bail!(
             "{} is {}×{} but {} is {}×{}; a rectified pair has equal sizes",

@@ -178,6 +178,29 @@ fn no_input_is_overwritten_and_no_user_file_deleted() {
         assert_clean_failure(&o, needle);
         assert!(!d.join("d.pfm").exists(), "{extra:?}: wrote an output");
     }
+    // A pair without signal is refused, not matched into "100 % valid" zeros.
+    let black = read_linear_image(&d.join(left)).unwrap();
+    let black = anaglyph_core::io::LinearImage {
+        data: vec![0.0; black.data.len()],
+        ..black
+    };
+    write_png16(&d.join("black.png"), &black).unwrap();
+    let o = anaglyph(
+        &[
+            "match",
+            "--left",
+            "black.png",
+            "--right",
+            right,
+            "--max-disp",
+            "8",
+            "--out",
+            "d.pfm",
+        ],
+        d,
+    );
+    assert_clean_failure(&o, "--left black.png cannot be used: its capture is black");
+    assert!(!d.join("d.pfm").exists());
     for (path, original) in [left, right].iter().zip(&originals) {
         assert_eq!(
             &std::fs::read(d.join(path)).unwrap(),

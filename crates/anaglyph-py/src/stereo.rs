@@ -5,6 +5,7 @@ use crate::compute::run;
 use crate::errors::IntoPyResult;
 use anaglyph_core::choice::Choice;
 use anaglyph_core::disparity::DisparityRange;
+use anaglyph_core::reconstruct::check_signal;
 use anaglyph_core::stereo::{match_pair, Contrast, GreyChannel, MatchMethod, MatchSettings};
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
@@ -39,6 +40,8 @@ pub fn match_pair_arrays<'py>(
     let right = channel
         .of(&image(right, "right image", None)?, "right image")
         .py()?;
+    check_signal(&left, f32::INFINITY, "left image").py()?;
+    check_signal(&right, f32::INFINITY, "right image").py()?;
     let output = run(py, || {
         let network = method.network(model.as_deref())?;
         let cost = method.cost(network.as_ref())?;

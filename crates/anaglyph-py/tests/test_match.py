@@ -83,3 +83,11 @@ def test_a_pair_too_large_for_memory_is_refused_before_allocating(monkeypatch):
         anaglyph.match(left, right, disp_range=(0, 16))
     with pytest.raises(anaglyph.TooLargeError):
         anaglyph.match(left, right, disp_range=(0, 16), method="census")
+
+
+def test_a_pair_without_signal_is_refused():
+    left, right = textured_pair()
+    with pytest.raises(anaglyph.UnusableError, match="left image cannot be used: its capture is black"):
+        anaglyph.match(np.zeros_like(left), right, disp_range=(0, 16))
+    with pytest.raises(anaglyph.UnusableError, match="constant"):
+        anaglyph.match(left, np.full_like(right, 0.5), disp_range=(0, 16))

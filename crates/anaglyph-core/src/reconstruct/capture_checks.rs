@@ -72,42 +72,48 @@ impl SignalStatistics {
 /// Refuses the first camera whose capture is black, saturated or constant.
 pub(super) fn check_capture_signal(captures: &ArrayCaptures, saturation: f32) -> Result<()> {
     for cam in &captures.cameras {
-        let stats = SignalStatistics::of(&cam.capture, saturation);
-        let camera = format!("camera {}", cam.name);
-        let black = stats.fraction(stats.black);
-        if black >= UNUSABLE_FRACTION {
-            return Err(Error::unusable(
-                camera,
-                format!(
-                    "its capture is black ({:.1} % of values below {BLACK_LEVEL} of full \
-                     scale; expected a lit scene): a lens cap, no light, or the wrong file? \
-                     Fix the capture or remove the camera from the rig",
-                    100.0 * black
-                ),
-            ));
-        }
-        let saturated = stats.fraction(stats.saturated);
-        if saturated >= UNUSABLE_FRACTION {
-            return Err(Error::unusable(
-                camera,
-                format!(
-                    "its capture is saturated ({:.1} % of values at or above the saturation \
-                     level {saturation}; expected most below it): expose it lower",
-                    100.0 * saturated
-                ),
-            ));
-        }
-        if stats.narrowest_span < CONSTANT_SPAN {
-            return Err(Error::unusable(
-                camera,
-                format!(
-                    "a channel of its capture is constant (its values span {:.2e} of full \
-                     scale; expected a textured scene and sensor noise): a synthetic or \
-                     stuck image?",
-                    stats.narrowest_span
-                ),
-            ));
-        }
+        check_signal(&cam.capture, saturation, &format!("camera {}", cam.name))?;
+    }
+    Ok(())
+}
+
+/// Refuses an image (`what`, e.g. "camera r0c1" or "the left image") that is black,
+/// saturated at `saturation` (a fraction of full scale; infinite: not checked) or constant:
+/// a picture no camera records of a lit, textured scene.
+pub fn check_signal(image: &Image<f32>, saturation: f32, what: &str) -> Result<()> {
+    let stats = SignalStatistics::of(image, saturation);
+    let black = stats.fraction(stats.black);
+    if black >= UNUSABLE_FRACTION {
+        return Err(Error::unusable(
+            what,
+            format!(
+                "its capture is black ({:.1} % of values below {BLACK_LEVEL} of full \
+                 scale; expected a lit scene): a lens cap, no light, or the wrong file?",
+                100.0 * black
+            ),
+        ));
+    }
+    let saturated = stats.fraction(stats.saturated);
+    if saturated >= UNUSABLE_FRACTION {
+        return Err(Error::unusable(
+            what,
+            format!(
+                "its capture is saturated ({:.1} % of values at or above the saturation \
+                 level {saturation}; expected most below it): expose it lower",
+                100.0 * saturated
+            ),
+        ));
+    }
+    if stats.narrowest_span < CONSTANT_SPAN {
+        return Err(Error::unusable(
+            what,
+            format!(
+                "a channel of its capture is constant (its values span {:.2e} of full \
+                 scale; expected a textured scene and sensor noise): a synthetic or \
+                 stuck image?",
+                stats.narrowest_span
+            ),
+        ));
     }
     Ok(())
 }

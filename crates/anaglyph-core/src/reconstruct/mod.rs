@@ -37,7 +37,7 @@ mod settings;
 mod summary;
 mod view;
 
-pub use capture_checks::{BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
+pub use capture_checks::{check_signal, BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
 pub use dark_level::Dark;
 pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
