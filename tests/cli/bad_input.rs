@@ -233,6 +233,29 @@ fn no_input_is_overwritten_and_no_user_file_deleted() {
     assert_eq!(std::fs::read(d.join("c.npy")).unwrap(), c);
     verify_output_folder(&d.join("sim")).unwrap();
 
+    // Calibration files that cannot be meant for these captures.
+    std::fs::create_dir(d.join("calib")).unwrap();
+    let identity = "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]";
+    let write_all = |text: &str| {
+        for row in 0..2 {
+            for col in 0..4 {
+                std::fs::write(d.join(format!("calib/r{row}c{col}.json")), text).unwrap();
+            }
+        }
+    };
+    write_all(&format!(
+        r#"{{"homography": {identity}, "image_width": 640, "image_height": 480}}"#
+    ));
+    let o = reconstruct(d, "rec", &["--calibration", "calib"]);
+    assert_clean_failure(&o, "a homography made for 640x480 px images");
+    write_all("[[1e12, 0, 0], [0, 1e12, 0], [0, 0, 1]]");
+    let o = reconstruct(d, "rec", &["--calibration", "calib"]);
+    assert_clean_failure(&o, "wrongly scaled");
+    write_all(identity);
+    let o = reconstruct(d, "rec-bare", &["--calibration", "calib"]);
+    assert!(o.status.success(), "a bare array of rows: {}", stderr(&o));
+    assert!(!d.join("rec").exists());
+
     // A user's files in a folder anaglyph wrote stop the next run into it.
     let o = reconstruct(d, "rec", &[]);
     assert!(o.status.success(), "{}", stderr(&o));

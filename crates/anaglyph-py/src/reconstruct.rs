@@ -73,9 +73,10 @@ fn calibration_of(value: &Bound<'_, PyAny>, camera: &str) -> PyResult<Calibratio
         return Err(crate::errors::shape_error(what, h.shape(), &[3, 3]));
     }
     let v: Vec<f64> = h.as_array().iter().copied().collect();
-    Ok(Calibration::Plane(Homography {
-        h: [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]],
-    }))
+    Ok(Calibration::Plane {
+        homography: Homography::new(&v, &what).py()?,
+        image_size: None,
+    })
 }
 
 /// The stage's name as the progress callback receives it.

@@ -79,7 +79,20 @@ fn plan_of(rig: &Rig, captures: &ArrayCaptures) -> Result<Rectification> {
             Some(Calibration::Pose(model)) => {
                 poses.push((c.name.clone(), cam.position_mm, model.clone()))
             }
-            Some(Calibration::Plane(h)) => planes.push((c.name.clone(), *h)),
+            Some(Calibration::Plane {
+                homography,
+                image_size,
+            }) => {
+                let size = (captures.width, captures.height);
+                if let Some((w, h)) = image_size.filter(|s| *s != size) {
+                    return Err(Error::mismatch(
+                        format!("calibration of camera {}", c.name),
+                        format!("a homography made for {w}x{h} px images"),
+                        format!("one for the captures' {}x{} px", size.0, size.1),
+                    ));
+                }
+                planes.push((c.name.clone(), *homography))
+            }
             None => {}
         }
     }

@@ -6,14 +6,19 @@
 
 use super::file_storage::read_file_storage;
 use super::{CameraModel, Homography};
-use crate::Result;
+use crate::{Error, Result};
 use std::path::Path;
 
 /// What a camera's calibration file says.
 #[derive(Debug, Clone)]
 pub enum Calibration {
     Pose(CameraModel),
-    Plane(Homography),
+    /// A map onto the reference camera through a plane, and the image size its file
+    /// states it was made for (`image_width`, `image_height`), where it does.
+    Plane {
+        homography: Homography,
+        image_size: Option<(usize, usize)>,
+    },
 }
 
 impl Calibration {
@@ -25,12 +30,42 @@ impl Calibration {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
         {
-            return Homography::read_npy(path).map(Calibration::Plane);
+            return Homography::read_npy(path).map(|homography| Calibration::Plane {
+                homography,
+                image_size: None,
+            });
         }
         let storage = read_file_storage(path)?;
         let context = path.display().to_string();
+        let plane = ["homography", "affine"].map(|k| storage.contains_key(k));
+        let pose = ["camera_matrix", "rotation_matrix", "translation_vector"]
+            .into_iter()
+            .find(|k| storage.contains_key(*k));
+        if plane[0] && plane[1] {
+            return Err(Error::bad_field(
+                &context,
+                "homography and affine",
+                "both",
+                "one map onto the reference: a homography or an affine map",
+            ));
+        }
+        if let (true, Some(pose)) = (plane[0] || plane[1], pose) {
+            return Err(Error::bad_field(
+                &context,
+                format!(
+                    "{} and {pose}",
+                    if plane[0] { "homography" } else { "affine" }
+                ),
+                "both",
+                "a plane calibration (homography or affine) or a pose (camera_matrix, \
+                 rotation_matrix, translation_vector), not both",
+            ));
+        }
         match Homography::from_stored(storage.get("homography"), storage.get("affine"), &context)? {
-            Some(h) => Ok(Calibration::Plane(h)),
+            Some(homography) => Ok(Calibration::Plane {
+                homography,
+                image_size: CameraModel::stated_image_size(&storage),
+            }),
             None => CameraModel::from_file_storage(&storage, &context).map(Calibration::Pose),
         }
     }
@@ -42,7 +77,7 @@ mod tests {
 
     fn plane(path: &Path) -> Homography {
         match Calibration::load(path).unwrap() {
-            Calibration::Plane(h) => h,
+            Calibration::Plane { homography, .. } => homography,
             Calibration::Pose(_) => panic!("{}: read as a pose", path.display()),
         }
     }
@@ -84,6 +119,27 @@ mod tests {
             error.contains("flat.npy") && error.contains("3x3"),
             "{error}"
         );
+        std::fs::write(d.join("bare.json"), "[[1, 0, 13], [0, 1, -2.5], [0, 0, 1]]").unwrap();
+        assert_eq!(plane(&d.join("bare.json")), expected);
+        std::fs::write(d.join("bare_affine.json"), "[[1, 0, 13], [0, 1, -2.5]]").unwrap();
+        assert_eq!(plane(&d.join("bare_affine.json")), expected);
+        for (name, text, needle) in [
+            ("bare4.json", "[[1, 0, 0, 0]]", "1 rows"),
+            (
+                "both.json",
+                r#"{"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "affine": [[1, 0, 0], [0, 1, 0]]}"#,
+                "homography and affine",
+            ),
+            (
+                "mixed.json",
+                r#"{"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "camera_matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}"#,
+                "homography and camera_matrix",
+            ),
+        ] {
+            std::fs::write(d.join(name), text).unwrap();
+            let error = Calibration::load(&d.join(name)).unwrap_err().to_string();
+            assert!(error.contains(name) && error.contains(needle), "{error}");
+        }
         std::fs::write(d.join("bad.json"), r#"{"homography": [[1, 0], [0, 1]]}"#).unwrap();
         let error = Calibration::load(&d.join("bad.json"))
             .unwrap_err()

@@ -151,12 +151,7 @@ impl CameraModel {
             Some((name, rows, cols, _)) => return Err(bad(name, format!("{rows}x{cols}"), "3x1")),
             None => return Err(bad("translation_vector (T)", "absent".into(), "3x1")),
         };
-        let size = |names: &[&str]| {
-            number_entry(storage, names)
-                .filter(|v| *v >= 1.0 && v.fract() == 0.0)
-                .map(|v| v as usize)
-        };
-        let image_size = size(&["image_width", "width"]).zip(size(&["image_height", "height"]));
+        let image_size = Self::stated_image_size(storage);
         Ok(CameraModel {
             camera_matrix,
             distortion,
@@ -164,6 +159,17 @@ impl CameraModel {
             translation,
             image_size,
         })
+    }
+
+    /// The image size a calibration file states it was made for (`image_width` and
+    /// `image_height`, or `width` and `height`), where it states one.
+    pub fn stated_image_size(storage: &FileStorage) -> Option<(usize, usize)> {
+        let size = |names: &[&str]| {
+            number_entry(storage, names)
+                .filter(|v| *v >= 1.0 && v.fract() == 0.0)
+                .map(|v| v as usize)
+        };
+        size(&["image_width", "width"]).zip(size(&["image_height", "height"]))
     }
 
     /// The model of a simulated camera (no distortion; world = the ideal camera r0c0).

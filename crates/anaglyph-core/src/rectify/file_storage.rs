@@ -39,7 +39,7 @@ pub fn read_file_storage(path: &Path) -> Result<FileStorage> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let context = path.display().to_string();
     match text.trim_start().chars().next() {
-        Some('{') => parse_json(&text, &context),
+        Some('{' | '[') => parse_json(&text, &context),
         Some('<') => Err(Error::UnsupportedFormat {
             file: path.into(),
             what: "FileStorage layout".into(),
@@ -58,9 +58,42 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
         line: e.line(),
         message: e.to_string(),
     })?;
-    let object = value
-        .as_object()
-        .ok_or_else(|| Error::decode(context, "expected a JSON object at the top level"))?;
+    // A bare array of rows is the matrix alone: 3 rows a homography, 2 an affine map.
+    if let serde_json::Value::Array(rows) = &value {
+        let name = match rows.len() {
+            3 => "homography",
+            2 => "affine",
+            n => {
+                return Err(Error::bad_field(
+                    context,
+                    "the array of rows",
+                    format!("{n} rows"),
+                    "3 rows of 3 (a homography) or 2 rows of 3 (an affine map)",
+                ))
+            }
+        };
+        if !rows
+            .iter()
+            .all(|r| r.as_array().is_some_and(|r| r.len() == 3))
+        {
+            return Err(Error::bad_field(
+                context,
+                "the array of rows",
+                value.to_string(),
+                "rows of 3 numbers",
+            ));
+        }
+        return Ok(FileStorage::from([(
+            name.to_string(),
+            rows_matrix(name, rows, context)?,
+        )]));
+    }
+    let object = value.as_object().ok_or_else(|| {
+        Error::decode(
+            context,
+            "expected a JSON object at the top level (or a bare array of the matrix's rows)",
+        )
+    })?;
     let mut out = FileStorage::new();
     for (name, entry) in object {
         let stored = match entry {

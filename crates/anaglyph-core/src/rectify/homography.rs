@@ -22,6 +22,10 @@ pub struct Homography {
 /// Smallest ratio of the Jacobian determinant's extremes over the frame: a map whose
 /// local area scale varies more than this folds or nearly folds the image.
 const MIN_AREA_RATIO: f64 = 0.05;
+/// Largest local area scale (and smallest, its inverse) a map between two cameras of one
+/// array may have: a factor of 4 in focal length. Beyond it the map is a wrong file or a
+/// wrongly scaled matrix (a camera collapsing to a point).
+const MAX_AREA_SCALE: f64 = 16.0;
 
 impl Homography {
     pub const IDENTITY: Homography = Homography {
@@ -187,6 +191,16 @@ impl Homography {
                 format!(
                     "the homography folds or flips the {width}x{height} image (local area \
                      scale {lo:.3} to {hi:.3} over the frame)"
+                ),
+            ));
+        }
+        if lo < 1.0 / MAX_AREA_SCALE || hi > MAX_AREA_SCALE {
+            return Err(Error::unusable(
+                context,
+                format!(
+                    "the homography scales the {width}x{height} image's area by {lo:.3e} to \
+                     {hi:.3e} (expected within 1/{MAX_AREA_SCALE} to {MAX_AREA_SCALE}, as \
+                     between cameras of one array): a wrongly scaled matrix?"
                 ),
             ));
         }
@@ -400,6 +414,16 @@ mod tests {
         let away = Homography::new(&[1.0, 0.0, 2000.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "a").unwrap();
         let error = away.check_frame(640, 480, "r0c1").unwrap_err().to_string();
         assert!(error.contains("away from the reference"), "{error}");
+        // The upper rows scaled by 1e12: the camera would collapse the frame to a point.
+        let scaled =
+            Homography::new(&[1e12, 0.0, 0.0, 0.0, 1e12, 0.0, 0.0, 0.0, 1.0], "s").unwrap();
+        let error = scaled
+            .check_frame(640, 480, "r0c1")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("wrongly scaled"), "{error}");
+        let zoom = Homography::new(&[2.0, 0.0, -320.0, 0.0, 2.0, -240.0, 0.0, 0.0, 1.0], "z");
+        zoom.unwrap().check_frame(640, 480, "r0c1").unwrap();
         assert!(Homography::new(&[1.0, 2.0, 0.0, 2.0, 4.0, 0.0, 0.0, 0.0, 1.0], "s").is_err());
         assert!(Homography::from_affine(&[1.0, 0.0, 3.0, 0.0, 1.0], "a").is_err());
     }
