@@ -12,8 +12,8 @@ pub use layout::{grid_name, MAX_FREE_CAMERAS, MAX_NEIGHBOUR_SPACING};
 pub use response_plot::plot_effective_responses;
 pub use rig_file::{
     curve_file, resolve_curve, resolve_optional_curve, Baseline, Camera, CameraEntry,
-    ReconstructionSettings, Rig, RigFile, BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE, PAPER_RIG,
-    PAPER_RIG_FILTERS, RIG_PRESETS,
+    ReconstructionSettings, Rig, RigFile, BUILTIN_PREFIX, MAX_BANDS, MAX_RIG_SIDE,
+    MIN_PLANE_BASELINES, PAPER_RIG, PAPER_RIG_FILTERS, RIG_PRESETS,
 };
 pub use sensing::{
     condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,

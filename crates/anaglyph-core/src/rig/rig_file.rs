@@ -104,7 +104,11 @@ pub struct CameraEntry {
     pub col: Option<usize>,
     /// Optical centre in the array's plane, mm, x right and y down seen from behind the
     /// array: any layout (hexagons, irregular), instead of `row` and `col`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "planar_position"
+    )]
     pub position_mm: Option<[f64; 2]>,
     /// The camera the array is calibrated to (default: the first camera).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -249,6 +253,27 @@ pub fn curve_file(reference: &str, base: &Path) -> Option<PathBuf> {
     // An absolute reference replaces `base`.
     Some(base.join(reference))
 }
+
+/// `position_mm` as exactly `[x, y]`: a third value (a depth) would be dropped, and the
+/// pipeline assumes the optical centres lie in one plane.
+fn planar_position<'de, D: serde::Deserializer<'de>>(
+    deserializer: D,
+) -> std::result::Result<Option<[f64; 2]>, D::Error> {
+    let values = Vec::<f64>::deserialize(deserializer)?;
+    match values[..] {
+        [x, y] => Ok(Some([x, y])),
+        _ => Err(serde::de::Error::custom(format!(
+            "position_mm has {} values {values:?} (expected [x, y] in mm: the optical centres \
+             lie in the array's plane, so there is no z)",
+            values.len()
+        ))),
+    }
+}
+
+/// Nearest a calibration plane may lie, in disparity baselines: nearer, the cameras'
+/// views of it shift by more than a tenth of the focal length between neighbours (1 mm
+/// gave shifts of 40,000 px and black captures).
+pub const MIN_PLANE_BASELINES: f64 = 10.0;
 
 impl RigFile {
     /// Parses TOML text.
@@ -439,6 +464,20 @@ impl Rig {
             illuminant,
         };
         rig.reconstruction_shape()?;
+        if let Some(plane) = rig.file.calibration_plane_mm {
+            let nearest = MIN_PLANE_BASELINES * rig.disparity_baseline_mm;
+            if rig.cameras.len() > 1 && plane < nearest {
+                return Err(Error::out_of_range(
+                    format!("rig '{}': calibration_plane_mm", rig.file.name),
+                    plane,
+                    format!(
+                        "at least {nearest} mm, {MIN_PLANE_BASELINES} times the {} mm baseline \
+                         (the plane the captures are registered to, in mm from the array)",
+                        rig.disparity_baseline_mm
+                    ),
+                ));
+            }
+        }
         Ok(rig)
     }
 
@@ -562,6 +601,27 @@ mod tests {
         assert!((hexagon.disparity_baseline_mm - 40.0).abs() < 1e-3);
         let error = Rig::preset("hex").unwrap_err().to_string();
         assert!(error.contains("paper-2x4, mono-3x3, hexagon-7"), "{error}");
+    }
+
+    #[test]
+    fn positions_in_three_dimensions_and_planes_at_the_array_are_refused() {
+        let text = "name = 'p'\nfocal_length_px = 450.0\nsensor = 'builtin:panchromatic'\n\
+                    [reconstruction]\nstart_nm = 460.0\nstep_nm = 40.0\ncount = 5\n\
+                    [[camera]]\nposition_mm = [0, 0, 5]\nfilter = 'gaussian:500:40'\n\
+                    [[camera]]\nposition_mm = [30, 0]\nfilter = 'gaussian:600:40'\n";
+        let err = RigFile::from_toml_str(text, "p.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("p.toml") && err.contains("position_mm has 3 values"),
+            "{err}"
+        );
+        let planar = text.replace("[0, 0, 5]", "[0, 0]");
+        for (plane, accepted) in [(1.0, false), (299.0, false), (300.0, true), (1500.0, true)] {
+            let file = format!("calibration_plane_mm = {plane}\n{planar}");
+            let rig = Rig::from_file(RigFile::from_toml_str(&file, "p").unwrap(), ".".into());
+            assert_eq!(rig.is_ok(), accepted, "{plane}: {:?}", rig.err());
+        }
     }
 
     #[test]
