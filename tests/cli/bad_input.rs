@@ -571,3 +571,58 @@ fn a_closed_standard_output_ends_the_process_quietly() {
     );
     assert!(!stderr(&output).contains("panicked"), "{}", stderr(&output));
 }
+
+/// A simulation's rig names only the dark signal the simulation rendered: an input rig's
+/// dark frame (a relative path that would dangle in the output) and black level are not
+/// copied, so reconstruct does not subtract what the captures never had.
+#[test]
+fn a_simulation_s_rig_keeps_no_dark_signal_it_did_not_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rig = anaglyph_core::rig::Rig::paper_rig_file(&anaglyph_core::rig::PAPER_RIG_FILTERS);
+    rig.cameras[0].dark = Some("darks/r0c0.png".into());
+    rig.cameras[1].black_level = Some(100.0);
+    rig.save(&d.join("dark.toml")).unwrap();
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--rig",
+            "dark.toml",
+            "--size",
+            "64x48",
+            "--out",
+            "sim",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(d.join("sim/rig.toml")).unwrap();
+    assert!(
+        !text.contains("dark") && !text.contains("black_level"),
+        "{text}"
+    );
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--rig",
+            "dark.toml",
+            "--size",
+            "64x48",
+            "--dark",
+            "0.02",
+            "--out",
+            "sim-dark",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(d.join("sim-dark/rig.toml")).unwrap();
+    assert!(
+        text.contains("dark = \"dark/r0c0.png\"") && !text.contains("black_level"),
+        "{text}"
+    );
+}

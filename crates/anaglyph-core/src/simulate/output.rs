@@ -176,7 +176,9 @@ fn finite_range(values: &[f32]) -> [f32; 2] {
 }
 
 /// The rig file of the simulation's folder: each camera's capture, white board, exposure
-/// (and calibration, with pose jitter) filled in; curve references that are files made
+/// (and calibration, with pose jitter, and dark frame, with a dark signal) filled in, the
+/// input rig's dark frames and black levels dropped (the captures hold only the dark
+/// signal the simulation rendered); curve references that are files made
 /// absolute, so that the copied rig still finds them (built-ins stay as they are).
 fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
     let mut rig_file = rig.file.clone();
@@ -186,9 +188,14 @@ fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
             entry.image = Some(PathBuf::from(format!("captures/{name}.png")));
             entry.white = Some(PathBuf::from(format!("white/{name}.png")));
             entry.exposure = Some(view.exposure);
-            if view.dark.is_some() {
-                entry.dark = Some(PathBuf::from(format!("dark/{name}.png")));
-            }
+            // The captures hold the dark signal the simulation rendered and no other: a
+            // dark frame or black level of the input rig would be subtracted from captures
+            // that never had it (and a relative dark path would dangle here).
+            entry.dark = view
+                .dark
+                .as_ref()
+                .map(|_| PathBuf::from(format!("dark/{name}.png")));
+            entry.black_level = None;
             if simulation.settings.pose_jitter.is_some() {
                 entry.calibration = Some(PathBuf::from(format!("calibration/{name}.json")));
             }
