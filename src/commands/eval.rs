@@ -50,12 +50,54 @@ fn print_bands(label: &str, centres: &[f64], values: &[f64], digits: usize) {
     }
 }
 
+/// Refuses a reconstruction of another array than the simulation's: the cameras and
+/// filters its manifest records must be the truth rig's.
+fn check_same_array(rig: &Rig, truth: &Path, recon: &Path) -> anyhow::Result<()> {
+    let path = recon.join(anaglyph_core::io::MANIFEST);
+    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+    let manifest: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| path.display().to_string())?;
+    let Some(cameras) = manifest["parameters"]["cameras"].as_array() else {
+        return Ok(()); // written before manifests recorded the array
+    };
+    let recorded: Vec<(String, String)> = cameras
+        .iter()
+        .map(|c| {
+            let field = |k: &str| c[k].as_str().unwrap_or_default().to_string();
+            (field("name"), field("filter"))
+        })
+        .collect();
+    let simulated: Vec<(String, String)> = rig
+        .cameras
+        .iter()
+        .map(|c| (c.name.clone(), c.filter.name().to_string()))
+        .collect();
+    if recorded != simulated {
+        let list = |l: &[(String, String)]| {
+            l.iter()
+                .map(|(n, f)| format!("{n} {f}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        anyhow::bail!(
+            "--recon {}: a reconstruction of cameras {} (expected the array --truth {} \
+             simulated: {})",
+            recon.display(),
+            list(&recorded),
+            truth.display(),
+            list(&simulated)
+        );
+    }
+    Ok(())
+}
+
 /// Scores every view found in `recon/views` against `truth`.
 pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
     let whole = |dir: &Path| format!("{}: not one run's complete output", dir.display());
     verify_output_subfolder(truth, "truth").with_context(|| whole(truth))?;
     verify_output_folder(recon).with_context(|| whole(recon))?;
     let rig = Rig::load(&truth.join("rig.toml"))?;
+    check_same_array(&rig, truth, recon)?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let maps: Vec<_> = rig
         .cameras

@@ -626,3 +626,41 @@ fn a_simulation_s_rig_keeps_no_dark_signal_it_did_not_render() {
         "{text}"
     );
 }
+
+/// `eval` refuses to score a reconstruction against the truth of another array (same
+/// camera names and size, other filters).
+#[test]
+fn eval_refuses_the_truth_of_another_array() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulate_into(d);
+    let o = reconstruct(d, "rec", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut filters = anaglyph_core::rig::PAPER_RIG_FILTERS;
+    filters.reverse();
+    anaglyph_core::rig::Rig::paper_rig_file(&filters)
+        .save(&d.join("other.toml"))
+        .unwrap();
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--rig",
+            "other.toml",
+            "--size",
+            "128x96",
+            "--out",
+            "other",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = anaglyph(&["eval", "--truth", "other", "--recon", "rec"], d);
+    assert_clean_failure(
+        &o,
+        "--recon rec: a reconstruction of cameras r0c0 gel_deep_red",
+    );
+    let o = anaglyph(&["eval", "--truth", "sim", "--recon", "rec"], d);
+    assert!(o.status.success(), "{}", stderr(&o));
+}

@@ -214,6 +214,12 @@ impl ReconstructOptions {
             "inconsistency_factor": settings.solve.inconsistency_factor,
             "warp_kernel": settings.warp_kernel.name(),
             "out_of_band": rig.file.reconstruction.out_of_band,
+            "rig_name": rig.file.name,
+            "cameras": rig
+                .cameras
+                .iter()
+                .map(|c| serde_json::json!({"name": c.name, "filter": c.filter.name()}))
+                .collect::<Vec<_>>(),
         })
     }
 }
