@@ -626,13 +626,13 @@ pub struct ReconstructArgs {
     #[arg(long, value_enum, default_value_t = Preset::Default)]
     pub preset: Preset,
     /// Reflectance of the white board.
-    #[arg(long, default_value_t = DEFAULT_WHITE_REFLECTANCE)]
+    #[arg(long, default_value_t = DEFAULT_WHITE_REFLECTANCE, allow_hyphen_values = true)]
     pub white_reflectance: f64,
     /// Capture values at or above this fraction of full scale are saturated (masked).
-    #[arg(long, default_value_t = DEFAULT_SATURATION_LEVEL)]
+    #[arg(long, default_value_t = DEFAULT_SATURATION_LEVEL, allow_hyphen_values = true)]
     pub saturation: f32,
     /// Pixels whose spectra are plotted: x,y[,x,y...].
-    #[arg(long, value_parser = parse_probes)]
+    #[arg(long, value_parser = parse_probes, allow_hyphen_values = true)]
     pub probe: Option<Probes>,
     /// A simulator output folder: its truth is drawn beside the probes.
     #[arg(long)]

@@ -664,3 +664,39 @@ fn eval_refuses_the_truth_of_another_array() {
     let o = anaglyph(&["eval", "--truth", "sim", "--recon", "rec"], d);
     assert!(o.status.success(), "{}", stderr(&o));
 }
+
+/// Messages that named the wrong thing or none: each names the option or file, what was
+/// found and what was expected.
+#[test]
+fn unclear_inputs_get_messages_naming_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulate_into(d);
+    // Negative numbers reach the option's own check instead of the argument parser.
+    let o = reconstruct(d, "rec", &["--white-reflectance", "-1"]);
+    assert_clean_failure(&o, "white reflectance is -1 (expected in (0, 1])");
+    let o = reconstruct(d, "rec", &["--probe", "-1,5"]);
+    assert_clean_failure(&o, "'-1' is not a pixel coordinate");
+    // Two candidate files for one camera are not picked silently.
+    let captures = captures_with(d, "two", |_| {});
+    std::fs::copy(captures.join("r0c0.png"), captures.join("r0c0.tif")).unwrap();
+    let o = reconstruct(d, "rec", &["--captures", "two"]);
+    assert_clean_failure(&o, "capture of camera r0c0: both");
+    // Curve keywords in any case, and without their arguments.
+    let mut rig = anaglyph_core::rig::Rig::paper_rig_file(&anaglyph_core::rig::PAPER_RIG_FILTERS);
+    rig.cameras[0].filter = "GAUSSIAN:550:40".into();
+    rig.save(&d.join("upper.toml")).unwrap();
+    let o = anaglyph(&["rig", "show", "upper.toml", "--plot", "u.svg"], d);
+    assert!(o.status.success(), "{}", stderr(&o));
+    rig.cameras[0].filter = "gaussian".into();
+    rig.save(&d.join("bare.toml")).unwrap();
+    let o = anaglyph(&["rig", "show", "bare.toml", "--plot", "b.svg"], d);
+    assert_clean_failure(&o, "curve 'gaussian': a keyword without its arguments");
+    // A camera named like the --views keyword.
+    rig.cameras[0].filter = "builtin:gel_red".into();
+    rig.cameras[0].name = Some("all".into());
+    rig.save(&d.join("all.toml")).unwrap();
+    let o = anaglyph(&["rig", "show", "all.toml", "--plot", "a.svg"], d);
+    assert_clean_failure(&o, "a camera named 'all'");
+    assert!(!d.join("rec").exists());
+}

@@ -79,17 +79,25 @@ pub struct CameraCalibration {
 /// `DIR/<name>.{ext}` for the first of `extensions` that exists; `what` names the file in
 /// the error.
 pub(crate) fn find_in(dir: &Path, name: &str, extensions: &[&str], what: &str) -> Result<PathBuf> {
-    extensions
+    let found: Vec<PathBuf> = extensions
         .iter()
         .map(|e| dir.join(format!("{name}.{e}")))
-        .find(|p| p.is_file())
-        .ok_or_else(|| Error::MissingFile {
-            path: dir.join(format!("{name}.{}", extensions[0])),
-            what: format!(
-                "no {what} {name}.{} for camera {name}",
-                extensions.join(", .")
-            ),
-        })
+        .filter(|p| p.is_file())
+        .collect();
+    if let [first, second, ..] = &found[..] {
+        return Err(Error::mismatch(
+            format!("{what} of camera {name}"),
+            format!("both {} and {}", first.display(), second.display()),
+            "one file per camera (move the other away)",
+        ));
+    }
+    found.into_iter().next().ok_or_else(|| Error::MissingFile {
+        path: dir.join(format!("{name}.{}", extensions[0])),
+        what: format!(
+            "no {what} {name}.{} for camera {name}",
+            extensions.join(", .")
+        ),
+    })
 }
 
 /// The files of one camera, found.

@@ -275,6 +275,13 @@ fn check_names(placements: &[Placement], rig: &str) -> Result<()> {
                 "names of 1 to 64 letters, digits, '_', '-' or '.', not starting with '.'",
             ));
         }
+        if p.name.eq_ignore_ascii_case("all") {
+            return Err(Error::mismatch(
+                rig,
+                "a camera named 'all'",
+                "another name ('all' is what --views takes for every view)",
+            ));
+        }
         if placements[..i].iter().any(|q| q.name == p.name) {
             return Err(Error::mismatch(
                 rig,

@@ -225,10 +225,27 @@ pub struct Rig {
 /// Loads a curve reference: `builtin:<name>`, a nominal narrow-band filter
 /// `gaussian:CENTRE_NM:FWHM_NM[:PEAK]`, or a CSV path relative to `base`.
 pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
-    if let Some(spec) = reference.strip_prefix(crate::filters::GAUSSIAN_PREFIX) {
+    let gaussian = crate::filters::GAUSSIAN_PREFIX;
+    // The keywords in any case; without their arguments they are not file names either.
+    let keyword = |prefix: &str| {
+        let n = prefix.len();
+        (reference.len() >= n && reference[..n].eq_ignore_ascii_case(prefix))
+            .then(|| &reference[n..])
+    };
+    let bare = [gaussian, BUILTIN_PREFIX]
+        .iter()
+        .any(|p| reference.eq_ignore_ascii_case(&p[..p.len() - 1]));
+    if bare || reference.trim().is_empty() {
+        return Err(Error::mismatch(
+            format!("curve '{reference}'"),
+            "a keyword without its arguments, or nothing",
+            "gaussian:CENTRE_NM:FWHM_NM[:PEAK], builtin:<name> or the path of a CSV file",
+        ));
+    }
+    if let Some(spec) = keyword(gaussian) {
         return crate::filters::gaussian_filter(spec);
     }
-    match reference.strip_prefix(BUILTIN_PREFIX) {
+    match keyword(BUILTIN_PREFIX) {
         Some(name) => builtin::any(name),
         None => ResponseCurve::load_csv(&base.join(reference)),
     }
