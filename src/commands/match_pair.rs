@@ -30,13 +30,6 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
     check_output_files(&outputs, &inputs)?;
     let left = load_grey(&args.left, args.channel)?;
     let right = load_grey(&args.right, args.channel)?;
-    for (option, path, image) in [
-        ("--left", &args.left, &left),
-        ("--right", &args.right, &right),
-    ] {
-        let what = format!("{option} {}", path.display());
-        check_signal(image, f32::INFINITY, &what)?;
-    }
     if (left.width, left.height) != (right.width, right.height) {
         anyhow::bail!(
             "{} is {}×{} but {} is {}×{}; a rectified pair has equal sizes",
@@ -90,6 +83,14 @@ pub fn run(args: MatchArgs) -> anyhow::Result<()> {
         settings.bilateral = None;
     }
     settings.contrast = args.contrast;
+    // After the cheaper checks of sizes, range and model, so that they speak first.
+    for (option, path, image) in [
+        ("--left", &args.left, &left),
+        ("--right", &args.right, &right),
+    ] {
+        let what = format!("{option} {}", path.display());
+        check_signal(image, f32::INFINITY, &what)?;
+    }
     let bar = spinner(format!(
         "matching {}×{} with {} over disparities {range}",
         left.width,
