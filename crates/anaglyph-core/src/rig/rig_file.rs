@@ -229,8 +229,9 @@ pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
     // The keywords in any case; without their arguments they are not file names either.
     let keyword = |prefix: &str| {
         let n = prefix.len();
-        (reference.len() >= n && reference[..n].eq_ignore_ascii_case(prefix))
-            .then(|| &reference[n..])
+        // `get`: a prefix length may fall inside a multi-byte character.
+        let head = reference.get(..n)?;
+        head.eq_ignore_ascii_case(prefix).then(|| &reference[n..])
     };
     let bare = [gaussian, BUILTIN_PREFIX]
         .iter()
