@@ -138,6 +138,16 @@ pub fn check_output_files(
     Ok(())
 }
 
+/// The CSV files among curve references given on the command line (relative to the
+/// working folder): inputs a command's outputs must not overwrite.
+pub fn curve_files(references: &[&str]) -> Vec<std::path::PathBuf> {
+    let here = std::path::Path::new(".");
+    references
+        .iter()
+        .filter_map(|r| anaglyph_core::rig::curve_file(r, here))
+        .collect()
+}
+
 /// The curve files (CSV) a rig's sensor, illuminant and filters name.
 pub fn rig_curve_files(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf> {
     let f = &rig.file;

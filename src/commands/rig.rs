@@ -25,11 +25,7 @@ fn init(args: RigInitArgs) -> anyhow::Result<()> {
     if args.out.exists() && !args.force {
         bail!("{} exists (use --force to overwrite)", args.out.display());
     }
-    let here = Path::new(".");
-    let curves: Vec<_> = [&args.sensor, &args.illuminant]
-        .into_iter()
-        .filter_map(|r| anaglyph_core::rig::curve_file(r, here))
-        .collect();
+    let curves = super::curve_files(&[&args.sensor, &args.illuminant]);
     let inputs: Vec<(&str, &Path)> = curves.iter().map(|p| ("curve", p.as_path())).collect();
     check_output_files(&[("--out", &args.out)], &inputs)?;
     let inputs = SelectionInputs {

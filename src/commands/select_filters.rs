@@ -106,11 +106,7 @@ pub fn run(args: SelectFiltersArgs) -> anyhow::Result<()> {
         bail!("--full-well must be > 0 and --read-noise >= 0");
     }
     if let Some(json) = &args.json {
-        let here = Path::new(".");
-        let curves: Vec<_> = [&args.sensor, &args.illuminant]
-            .into_iter()
-            .filter_map(|r| anaglyph_core::rig::curve_file(r, here))
-            .collect();
+        let curves = super::curve_files(&[&args.sensor, &args.illuminant]);
         let inputs: Vec<(&str, &Path)> = curves.iter().map(|p| ("curve", p.as_path())).collect();
         super::check_output_files(&[("--json", json)], &inputs)?;
     }
