@@ -138,7 +138,7 @@ fn main() -> anyhow::Result<()> {
                     label: &label,
                     seconds,
                 };
-                print_scores(&row, &field, &simulation, &truth_maps, &geometry)?;
+                print_scores(&row, &field, &simulation, &geometry)?;
                 eprintln!("{preset} {mode} {label}: {:?}", field.timings);
                 if k > 0 {
                     continue;
@@ -318,7 +318,6 @@ fn print_scores(
     row: &TableRow<'_>,
     field: &LightField,
     simulation: &Simulation,
-    truth_maps: &[Vec<f32>],
     geometry: &ArrayGeometry,
 ) -> anyhow::Result<()> {
     let (width, height) = (simulation.settings.width, simulation.settings.height);
@@ -327,12 +326,19 @@ fn print_scores(
     let mut reference = None;
     for (i, view) in field.views.iter().enumerate() {
         let truth = &simulation.views[i].truth;
-        let all = score_cube(truth, &view.reflectance, width, height, nb, None)?;
+        let all = score_cube(truth, &view.reflectance.data, width, height, nb, None)?;
         psnr_sum += all.psnr;
         ssim_sum += all.ssim;
         if i == 0 {
-            let mask = seen_by_all_views(truth_maps, geometry, 0, width, height);
-            let seen = score_cube(truth, &view.reflectance, width, height, nb, Some(&mask))?;
+            let mask = seen_by_all_views(&simulation.disparity_maps(), geometry, 0);
+            let seen = score_cube(
+                truth,
+                &view.reflectance.data,
+                width,
+                height,
+                nb,
+                Some(&mask),
+            )?;
             reference = Some((all, seen));
         }
     }

@@ -237,7 +237,7 @@ fn demux_rejects_bad_input_without_writing_output() {
         )
     };
     assert_clean_failure(&run("P3.npy"), "3 channels but C has 2 rows");
-    assert_clean_failure(&run("Pinf.npy"), "infinite");
+    assert_clean_failure(&run("Pinf.npy"), "is inf (expected a finite number)");
     assert_clean_failure(&run("missing.npy"), "missing.npy");
     std::fs::write(
         dir.path().join("junk.npy"),

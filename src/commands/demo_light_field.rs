@@ -70,19 +70,22 @@ fn scores(
 ) -> anyhow::Result<RunScores> {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
     let nb = field.bands.len();
-    let maps: Vec<Vec<f32>> = simulation
-        .views
-        .iter()
-        .map(|v| v.disparity.clone())
-        .collect();
+    let maps = simulation.disparity_maps();
     let mut all = Vec::new();
     for (view, truth) in field.views.iter().zip(&simulation.views) {
-        all.push(score_cube(&truth.truth, &view.reflectance, w, h, nb, None)?);
+        all.push(score_cube(
+            &truth.truth,
+            &view.reflectance.data,
+            w,
+            h,
+            nb,
+            None,
+        )?);
     }
-    let mask = seen_by_all_views(&maps, geometry, 0, w, h);
+    let mask = seen_by_all_views(&maps, geometry, 0);
     let seen = score_cube(
         &simulation.views[0].truth,
-        &field.views[0].reflectance,
+        &field.views[0].reflectance.data,
         w,
         h,
         nb,

@@ -4,6 +4,7 @@
 
 use super::check_output_file;
 use crate::cli::EvalArgs;
+use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views, BandScores};
 use anaglyph_core::io::{
     read_envi, read_pfm, verify_output_folder, verify_output_subfolder, write_atomically,
@@ -102,7 +103,10 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
     let maps: Vec<_> = rig
         .cameras
         .iter()
-        .map(|c| read_pfm(&truth.join(format!("truth/{}_disparity.pfm", c.name))))
+        .map(|c| {
+            let pfm = read_pfm(&truth.join(format!("truth/{}_disparity.pfm", c.name)))?;
+            DisparityMap::from_pfm(pfm, DisparityConvention::ColumnStep)
+        })
         .collect::<Result<_, _>>()?;
     let mut views = Vec::new();
     let mut bands_nm = Vec::new();
@@ -133,21 +137,14 @@ pub fn evaluate(truth: &Path, recon: &Path) -> anyhow::Result<EvalReport> {
             }
         }
         let (w, h, nb) = shape(&expected);
-        let disparities: Vec<Vec<f32>> = maps
-            .iter()
-            .map(|m| {
-                if (m.width, m.height) == (w, h) {
-                    Ok(m.data.clone())
-                } else {
-                    anyhow::bail!(
-                        "truth disparity maps are {}x{}, the views {w}x{h}",
-                        m.width,
-                        m.height
-                    )
-                }
-            })
-            .collect::<anyhow::Result<_>>()?;
-        let mask = seen_by_all_views(&disparities, &geometry, v, w, h);
+        if let Some(m) = maps.iter().find(|m| (m.width, m.height) != (w, h)) {
+            anyhow::bail!(
+                "truth disparity maps are {}x{}, the views {w}x{h}",
+                m.width,
+                m.height
+            );
+        }
+        let mask = seen_by_all_views(&maps, &geometry, v);
         let pixel_ok = estimate
             .image
             .data

@@ -4,6 +4,7 @@
 //! same pipeline fed the true homographies.
 
 use super::{anaglyph, eval_psnr, stderr, stdout};
+use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{bad_pixel_share, seen_by_all_views};
 use anaglyph_core::io::read_pfm;
 use anaglyph_core::register::ArrayGeometry;
@@ -89,18 +90,19 @@ fn write_true_homographies(dir: &Path) {
 fn centre_bad_1(dir: &Path, recon: &str) -> f64 {
     let rig = Rig::load(&dir.join("sim/rig.toml")).unwrap();
     let plane = FOCAL_PX * SPACING_MM / PLANE_MM;
-    let truth: Vec<Vec<f32>> = (0..7)
+    let truth: Vec<DisparityMap> = (0..7)
         .map(|k| {
             let path = dir.join(format!("sim/truth/{}_disparity.pfm", name(k)));
             let map = read_pfm(&path).unwrap();
-            map.data.iter().map(|t| t - plane as f32).collect()
+            let data = map.data.iter().map(|t| t - plane as f32).collect();
+            DisparityMap::new(320, 240, DisparityConvention::ColumnStep, data).unwrap()
         })
         .collect();
-    let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0, 320, 240);
+    let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0);
     let estimate = read_pfm(&dir.join(format!("{recon}/disparity/{}.pfm", name(0)))).unwrap();
     let total = seen.iter().filter(|&&s| s).count();
     assert!(total > 320 * 240 / 3, "{total} pixels seen by every camera");
-    bad_pixel_share(&estimate.data, &truth[0], Some(&seen), 1.0)
+    bad_pixel_share(&estimate.data, &truth[0].data, Some(&seen), 1.0)
 }
 
 #[test]

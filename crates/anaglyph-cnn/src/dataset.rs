@@ -205,11 +205,11 @@ fn render_pair(
     let (lv, rv) = match (views.next(), views.next()) {
         (Some(l), Some(r)) => (l, r),
         _ => {
-            return Err(anaglyph_core::Error::Mismatch {
-                what: "simulated stereo pair".into(),
-                found: "fewer than two views".into(),
-                expected: "two views".into(),
-            })
+            return Err(anaglyph_core::Error::setting(
+                "simulated stereo pair",
+                "fewer than two views",
+                "two views",
+            ))
         }
     };
     // Keep the disparity where the right view sees the same surface (|d_R(x − d) − d| < 1).
@@ -285,12 +285,12 @@ pub fn channel_swap_pairs() -> anaglyph_core::Result<Vec<StereoPair>> {
     let mut pairs = Vec::new();
     for name in TEXTURE_NAMES {
         let texture = builtin_texture(name)?;
-        let (w, h) = (texture.width, texture.height);
+        let rgb = &texture.image;
         let channel = |c: usize| GreyImage {
             channels: 1,
-            width: w,
-            height: h,
-            data: texture.rgb.iter().map(|p| p[c]).collect(),
+            width: rgb.width,
+            height: rgb.height,
+            data: rgb.data.iter().skip(c).step_by(3).copied().collect(),
         };
         for a in 0..3 {
             for b in 0..3 {
@@ -298,7 +298,7 @@ pub fn channel_swap_pairs() -> anaglyph_core::Result<Vec<StereoPair>> {
                     pairs.push(StereoPair {
                         left: normalise_image(&channel(a)),
                         right: normalise_image(&channel(b)),
-                        disparity: vec![0.0; w * h],
+                        disparity: vec![0.0; rgb.pixels()],
                         kind: PairKind::ChannelSwap,
                         label: format!("{name} channel {a} vs {b}"),
                     });

@@ -42,7 +42,7 @@ impl DisparityRange {
     /// ±[`MAX_DISPARITY_MAGNITUDE`].
     pub fn new(min: i32, max: i32) -> Result<Self> {
         if min >= max {
-            return Err(Error::mismatch(
+            return Err(Error::disparity_range(
                 "disparity range",
                 format!("{min}:{max}"),
                 "MIN:MAX with MIN < MAX (MAX is one past the largest disparity searched)",
@@ -97,7 +97,7 @@ impl DisparityRange {
     /// Checks that images `width` pixels wide can overlap at every disparity searched.
     pub fn check_width(&self, width: usize, what: &str) -> Result<()> {
         if self.count() < 2 || self.magnitude() >= width {
-            return Err(Error::mismatch(
+            return Err(Error::disparity_range(
                 format!("disparity range {self} against {what}"),
                 format!(
                     "{} disparities, up to {} px",
@@ -123,7 +123,7 @@ impl FromStr for DisparityRange {
     /// `MIN:MAX`, e.g. `-24:8`.
     fn from_str(text: &str) -> Result<Self> {
         let bad = || {
-            Error::mismatch(
+            Error::disparity_range(
                 "disparity range",
                 format!("'{text}'"),
                 "MIN:MAX in whole pixels, e.g. -24:8 (MAX one past the largest searched)",
@@ -194,7 +194,7 @@ impl DisparityMap {
                 convention: DisparityConvention::ColumnStep,
                 ..self
             }),
-            other => Err(Error::mismatch(
+            other => Err(Error::setting(
                 "disparity map convention",
                 format!("{other:?} (no column-step reading without the array geometry)"),
                 "ColumnStep or a horizontal pair",
@@ -217,7 +217,7 @@ impl DisparityMap {
             });
         }
         if self.convention != convention {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "disparity map convention",
                 format!("{:?}", self.convention),
                 format!("{convention:?}"),
@@ -287,14 +287,14 @@ mod tests {
         for bad in ["8:8", "8:-24", "-24", "a:b", "1:99999999"] {
             let kind = bad.parse::<DisparityRange>().err().map(|e| e.kind());
             assert!(
-                kind == Some("Mismatch") || kind == Some("OutOfRange"),
+                kind == Some("DisparityRange") || kind == Some("OutOfRange"),
                 "{bad}"
             );
         }
         assert!(r.check_width(25, "the images").is_ok());
         assert_eq!(
             r.check_width(24, "the images").err().map(|e| e.kind()),
-            Some("Mismatch")
+            Some("DisparityRange")
         );
     }
 
@@ -324,7 +324,7 @@ mod tests {
                 .into_column_step()
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Setting")
         );
         assert!(map.check(1, 1, DisparityConvention::ColumnStep).is_ok());
         assert_eq!(
@@ -338,7 +338,7 @@ mod tests {
                 .check(1, 1, DisparityConvention::ColumnStep)
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Setting")
         );
     }
 }

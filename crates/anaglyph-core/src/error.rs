@@ -60,11 +60,85 @@ pub enum Error {
         available: String,
     },
 
+    /// The rig's cameras (their layout, names or count) cannot make an array.
+    #[error("{rig}: {found} (expected {expected})")]
+    RigLayout {
+        rig: String,
+        found: String,
+        expected: String,
+    },
+
+    /// The captures (or white boards, dark frames) do not match the rig's cameras.
     #[error("{what}: {found} (expected {expected})")]
-    Mismatch {
+    Captures {
         what: String,
         found: String,
         expected: String,
+    },
+
+    /// A calibration does not fit the cameras or the captures.
+    #[error("{what}: {found} (expected {expected})")]
+    Calibration {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// An image, map or cube of a size or channel count that does not fit.
+    #[error("{what}: {found} (expected {expected})")]
+    Raster {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// A disparity search range that is malformed or does not fit the images.
+    #[error("{what}: {found} (expected {expected})")]
+    DisparityRange {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// A spectral curve, filter reference or sampling that cannot be used.
+    #[error("{what}: {found} (expected {expected})")]
+    Curve {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// A scene description (objects, materials, shapes) that cannot be rendered.
+    #[error("{what}: {found} (expected {expected})")]
+    Scene {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// A setting, or a combination of settings, that the operation cannot take.
+    #[error("{what}: {found} (expected {expected})")]
+    Setting {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// An output path or folder that holds something else.
+    #[error("{what}: {found} (expected {expected})")]
+    OutputConflict {
+        what: String,
+        found: String,
+        expected: String,
+    },
+
+    /// A probe pixel outside the image.
+    #[error("probe: pixel ({x}, {y}) (expected a pixel inside the {width}x{height} image)")]
+    ProbeOutside {
+        x: usize,
+        y: usize,
+        width: usize,
+        height: usize,
     },
 
     #[error("{what} cannot be used: {why}")]
@@ -156,7 +230,7 @@ pub enum ErrorClass {
 }
 
 /// Every [`Error::kind`] with its class, in the enum's order.
-pub const ERROR_KINDS: [(&str, ErrorClass); 21] = [
+pub const ERROR_KINDS: [(&str, ErrorClass); 30] = [
     ("Io", ErrorClass::Io),
     ("Parse", ErrorClass::InvalidValue),
     ("BadField", ErrorClass::InvalidValue),
@@ -165,7 +239,16 @@ pub const ERROR_KINDS: [(&str, ErrorClass); 21] = [
     ("MissingFile", ErrorClass::MissingFile),
     ("NonFinite", ErrorClass::InvalidValue),
     ("NotFound", ErrorClass::InvalidValue),
-    ("Mismatch", ErrorClass::InvalidValue),
+    ("RigLayout", ErrorClass::InvalidValue),
+    ("Captures", ErrorClass::InvalidValue),
+    ("Calibration", ErrorClass::InvalidValue),
+    ("Raster", ErrorClass::InvalidValue),
+    ("DisparityRange", ErrorClass::InvalidValue),
+    ("Curve", ErrorClass::InvalidValue),
+    ("Scene", ErrorClass::InvalidValue),
+    ("Setting", ErrorClass::InvalidValue),
+    ("OutputConflict", ErrorClass::InvalidValue),
+    ("ProbeOutside", ErrorClass::InvalidValue),
     ("Unusable", ErrorClass::InvalidValue),
     ("Decode", ErrorClass::InvalidValue),
     ("Output", ErrorClass::Io),
@@ -196,7 +279,16 @@ impl Error {
             Error::MissingFile { .. } => "MissingFile",
             Error::NonFinite { .. } => "NonFinite",
             Error::NotFound { .. } => "NotFound",
-            Error::Mismatch { .. } => "Mismatch",
+            Error::RigLayout { .. } => "RigLayout",
+            Error::Captures { .. } => "Captures",
+            Error::Calibration { .. } => "Calibration",
+            Error::Raster { .. } => "Raster",
+            Error::DisparityRange { .. } => "DisparityRange",
+            Error::Curve { .. } => "Curve",
+            Error::Scene { .. } => "Scene",
+            Error::Setting { .. } => "Setting",
+            Error::OutputConflict { .. } => "OutputConflict",
+            Error::ProbeOutside { .. } => "ProbeOutside",
             Error::Unusable { .. } => "Unusable",
             Error::Decode { .. } => "Decode",
             Error::Output { .. } => "Output",
@@ -260,13 +352,117 @@ impl Error {
         }
     }
 
-    /// A [`Error::Mismatch`]: `what` was `found` where `expected` was expected.
-    pub fn mismatch(
+    /// An [`Error::RigLayout`]: `rig` was `found` where `expected` was expected.
+    pub fn rig_layout(
+        rig: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::RigLayout {
+            rig: rig.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Captures`]: `what` was `found` where `expected` was expected.
+    pub fn captures(
         what: impl Into<String>,
         found: impl Into<String>,
         expected: impl Into<String>,
     ) -> Self {
-        Error::Mismatch {
+        Error::Captures {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Calibration`]: `what` was `found` where `expected` was expected.
+    pub fn calibration(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Calibration {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Raster`]: `what` was `found` where `expected` was expected.
+    pub fn raster(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Raster {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::DisparityRange`]: `what` was `found` where `expected` was expected.
+    pub fn disparity_range(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::DisparityRange {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Curve`]: `what` was `found` where `expected` was expected.
+    pub fn curve(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Curve {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Scene`]: `what` was `found` where `expected` was expected.
+    pub fn scene(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Scene {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::Setting`]: `what` was `found` where `expected` was expected.
+    pub fn setting(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::Setting {
+            what: what.into(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+
+    /// An [`Error::OutputConflict`]: `what` was `found` where `expected` was expected.
+    pub fn output_conflict(
+        what: impl Into<String>,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::OutputConflict {
             what: what.into(),
             found: found.into(),
             expected: expected.into(),
@@ -336,7 +532,21 @@ mod tests {
                 name: s(),
                 available: s(),
             },
-            Error::mismatch("x", "x", "x"),
+            Error::rig_layout("x", "x", "x"),
+            Error::captures("x", "x", "x"),
+            Error::calibration("x", "x", "x"),
+            Error::raster("x", "x", "x"),
+            Error::disparity_range("x", "x", "x"),
+            Error::curve("x", "x", "x"),
+            Error::scene("x", "x", "x"),
+            Error::setting("x", "x", "x"),
+            Error::output_conflict("x", "x", "x"),
+            Error::ProbeOutside {
+                x: 1,
+                y: 1,
+                width: 1,
+                height: 1,
+            },
             Error::unusable("x", "x"),
             Error::decode(p(), "x"),
             Error::output("x", "x"),
@@ -391,19 +601,28 @@ mod tests {
             Error::MissingFile { .. } => 5,
             Error::NonFinite { .. } => 6,
             Error::NotFound { .. } => 7,
-            Error::Mismatch { .. } => 8,
-            Error::Unusable { .. } => 9,
-            Error::Decode { .. } => 10,
-            Error::Output { .. } => 11,
-            Error::CurveNotCovering { .. } => 12,
-            Error::Shape { .. } => 13,
-            Error::TooLarge { .. } => 14,
-            Error::SingularNormalMatrix { .. } => 15,
-            Error::OutOfRange { .. } => 16,
-            Error::StageDependency { .. } => 17,
-            Error::LinearAlgebra { .. } => 18,
-            Error::NoConvergence { .. } => 19,
-            Error::Cancelled { .. } => 20,
+            Error::RigLayout { .. } => 8,
+            Error::Captures { .. } => 9,
+            Error::Calibration { .. } => 10,
+            Error::Raster { .. } => 11,
+            Error::DisparityRange { .. } => 12,
+            Error::Curve { .. } => 13,
+            Error::Scene { .. } => 14,
+            Error::Setting { .. } => 15,
+            Error::OutputConflict { .. } => 16,
+            Error::ProbeOutside { .. } => 17,
+            Error::Unusable { .. } => 18,
+            Error::Decode { .. } => 19,
+            Error::Output { .. } => 20,
+            Error::CurveNotCovering { .. } => 21,
+            Error::Shape { .. } => 22,
+            Error::TooLarge { .. } => 23,
+            Error::SingularNormalMatrix { .. } => 24,
+            Error::OutOfRange { .. } => 25,
+            Error::StageDependency { .. } => 26,
+            Error::LinearAlgebra { .. } => 27,
+            Error::NoConvergence { .. } => 28,
+            Error::Cancelled { .. } => 29,
         }
     }
 

@@ -7,7 +7,13 @@
 use crate::{Error, Result};
 
 /// `height × width × channels` values of type `T`: `data[(y * width + x) * channels + c]`.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// The one raster of the library: captures and matching images (`Image<f32>`), feature
+/// maps ([`crate::stereo::FeatureMap`], `Image<f32>` with a channel per feature), their
+/// bfloat16 form ([`crate::register::CompactFeatures`], `Image<u16>`), cubes and
+/// registered stacks (`Image<f32>` with a channel per band) and previews
+/// ([`crate::reconstruct::RgbPreview`], `Image<u8>`, three channels).
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Image<T> {
     pub width: usize,
     pub height: usize,

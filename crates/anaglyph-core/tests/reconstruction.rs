@@ -93,14 +93,10 @@ fn fixed(range: DisparityRange) -> Disparities {
 fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64, f64, f64) {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
     let nb = field.bands.len();
-    let maps: Vec<Vec<f32>> = simulation
-        .views
-        .iter()
-        .map(|v| v.disparity.clone())
-        .collect();
-    let mask = seen_by_all_views(&maps, &ArrayGeometry::of_rig(rig), 0, w, h);
+    let maps = simulation.disparity_maps();
+    let mask = seen_by_all_views(&maps, &ArrayGeometry::of_rig(rig), 0);
     let truth = &simulation.views[0].truth;
-    let estimate = &field.views[0].reflectance;
+    let estimate = &field.views[0].reflectance.data;
     let all = score_cube(truth, estimate, w, h, nb, None).unwrap();
     let seen = score_cube(truth, estimate, w, h, nb, Some(&mask)).unwrap();
     let mean = field
@@ -108,7 +104,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
         .iter()
         .zip(&simulation.views)
         .map(|(v, s)| {
-            score_cube(&s.truth, &v.reflectance, w, h, nb, None)
+            score_cube(&s.truth, &v.reflectance.data, w, h, nb, None)
                 .unwrap()
                 .psnr
         })
@@ -118,7 +114,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
         .disparity
         .data
         .iter()
-        .zip(&maps[0])
+        .zip(&maps[0].data)
         .filter(|(e, t)| !((*e - *t).abs() <= 2.0))
         .count();
     (
@@ -353,11 +349,12 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
                     "{report:?}"
                 );
             }
-            let seen = seen_by_all_views(&truth, &geometry, i, w, h);
+            let seen = seen_by_all_views(&simulation.disparity_maps(), &geometry, i);
             let some_miss: Vec<bool> = seen.iter().map(|s| !s).collect();
             let truth = &simulation.views[i].truth;
-            let all = score_cube(truth, &view.reflectance, w, h, nb, None).unwrap();
-            let part = score_cube(truth, &view.reflectance, w, h, nb, Some(&some_miss)).unwrap();
+            let all = score_cube(truth, &view.reflectance.data, w, h, nb, None).unwrap();
+            let part =
+                score_cube(truth, &view.reflectance.data, w, h, nb, Some(&some_miss)).unwrap();
             missed.push((all.psnr, part.psnr));
         }
         scores.push(missed);
@@ -698,14 +695,15 @@ fn an_irregular_layout_is_registered_along_every_pair_baseline() {
     );
     pipeline.views = Some(vec!["cam0".into()]);
     let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
-    let truth: Vec<Vec<f32>> = simulation
-        .views
-        .iter()
-        .map(|v| v.disparity.clone())
-        .collect();
-    let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0, 160, 120);
+    let truth = simulation.disparity_maps();
+    let seen = seen_by_all_views(&truth, &ArrayGeometry::of_rig(&rig), 0);
     let total = seen.iter().filter(|&&s| s).count();
-    let bad_1 = bad_pixel_share(&field.views[0].disparity.data, &truth[0], Some(&seen), 1.0);
+    let bad_1 = bad_pixel_share(
+        &field.views[0].disparity.data,
+        &truth[0].data,
+        Some(&seen),
+        1.0,
+    );
     let pairs = &field.views[0].pair_agreements;
     eprintln!(
         "irregular layout, cam0: bad-1 {:.2} % of {total} pixels every camera sees; \

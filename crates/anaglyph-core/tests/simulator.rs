@@ -396,7 +396,7 @@ fn bad_simulation_settings_are_errors() {
                 width: 0,
                 ..tiny.clone()
             },
-            "Mismatch",
+            "Setting",
         ),
         (
             SimulationSettings {

@@ -526,7 +526,7 @@ fn the_chain_refuses_pairs_it_cannot_match_before_any_work() {
     assert!(matches!(err, Error::NonFinite { .. }), "{err}");
     let wide = MatchSettings::for_cost(&cost, up_to(64));
     let err = match_pair(&left, &right, &cost, &wide).unwrap_err();
-    assert_eq!(err.kind(), "Mismatch", "{err}");
+    assert_eq!(err.kind(), "DisparityRange", "{err}");
     assert!(err.to_string().contains("0:64"), "{err}");
     // A signed range reaching as far the other way.
     let signed = MatchSettings::for_cost(&cost, DisparityRange::new(-40, 4).unwrap());

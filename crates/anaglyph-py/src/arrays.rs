@@ -77,7 +77,7 @@ pub fn image(
                 Some(1) | None => "(H, W)",
                 Some(_) => "(H, W, C)",
             };
-            return Err(to_py(Error::mismatch(
+            return Err(to_py(Error::raster(
                 what,
                 format!("an array of shape {shape:?}"),
                 format!("an image of shape {expected}"),
@@ -153,4 +153,12 @@ pub fn image_array<'py, T: Element>(
         c => vec![image.height, image.width, c],
     };
     array(py, &shape, image.data)
+}
+
+/// A cube or stack as `(H, W, C)`, three dimensions even for one channel.
+pub fn cube_array<'py, T: Element>(
+    py: Python<'py>,
+    image: Image<T>,
+) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
+    array(py, &[image.height, image.width, image.channels], image.data)
 }

@@ -33,7 +33,7 @@ pub fn calibrate<'py>(
         format!("{}x{}", pattern.0, pattern.1)
             .parse()
             .map_err(|e: String| {
-                to_py(Error::mismatch(
+                to_py(Error::setting(
                     "pattern",
                     e,
                     "(cols, rows) inner corners, 2 to 100 each",
@@ -46,7 +46,7 @@ pub fn calibrate<'py>(
     let mut captures = Vec::with_capacity(rig.cameras.len());
     for cam in &rig.cameras {
         let board = boards.get_item(&cam.name)?.ok_or_else(|| {
-            to_py(Error::mismatch(
+            to_py(Error::captures(
                 "boards",
                 format!("no checkerboard capture of camera {}", cam.name),
                 "one per camera of the rig",

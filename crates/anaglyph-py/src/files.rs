@@ -56,7 +56,7 @@ pub fn write_envi(
         })
         .map_err(|_| crate::errors::type_error("cube: expected a numeric numpy array"))?;
     let [height, width, bands] = cube_array.shape()[..] else {
-        return Err(to_py(Error::mismatch(
+        return Err(to_py(Error::raster(
             "cube",
             format!("shape {:?}", cube_array.shape()),
             "(H, W, bands)",
@@ -68,7 +68,7 @@ pub fn write_envi(
         ("band_names", band_names.as_ref().map(Vec::len)),
     ] {
         if let Some(len) = len.filter(|&l| l != bands) {
-            return Err(to_py(Error::mismatch(
+            return Err(to_py(Error::raster(
                 what,
                 format!("{len} values"),
                 format!("one per band ({bands})"),
@@ -102,7 +102,7 @@ pub fn write_pfm(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>) -> PyR
         [h, w] => (h, w, 1),
         [h, w, 3] => (h, w, 3),
         _ => {
-            return Err(to_py(Error::mismatch(
+            return Err(to_py(Error::raster(
                 "PFM array",
                 format!("shape {shape:?}"),
                 "(H, W) or (H, W, 3)",

@@ -1,7 +1,7 @@
 //! `anaglyph.reconstruct`: a rig's captures in memory to a multispectral light field in
 //! memory, through the core's `reconstruct` (the CLI's pipeline, byte for byte).
 
-use crate::arrays::{array, full_scale, image};
+use crate::arrays::{array, cube_array, full_scale, image, image_array};
 use crate::compute::run_cancellable;
 use crate::errors::{to_py, type_error, IntoPyResult};
 use crate::rig::Rig;
@@ -120,7 +120,7 @@ fn array_captures(
     for (i, cam) in rig.cameras.iter().enumerate() {
         let channels = Some(cam.sensor.channel_count());
         let capture = pictures[i].as_ref().ok_or_else(|| {
-            to_py(Error::mismatch(
+            to_py(Error::captures(
                 "captures",
                 format!("no capture of camera {}", cam.name),
                 format!(
@@ -185,7 +185,7 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
         if text == "auto" {
             return Ok(DisparitySearch::Auto);
         }
-        return Err(to_py(Error::mismatch(
+        return Err(to_py(Error::disparity_range(
             "disp_range",
             format!("'{text}'"),
             "\"auto\" or a (min, max) pair of integers",
@@ -299,15 +299,15 @@ pub fn reconstruct<'py>(
     let out = PyDict::new(py);
     let (w, h, bands) = (field.width, field.height, field.bands.len());
     let views = PyDict::new(py);
-    let stack_channels = field.channel_labels.len();
     for view in field.views {
         let v = PyDict::new(py);
         if options.output.cubes() {
-            v.set_item("cube", array(py, &[h, w, bands], view.reflectance)?)?;
+            v.set_item("cube", cube_array(py, view.reflectance)?)?;
         }
         v.set_item("disparity", array(py, &[h, w], view.disparity.data)?)?;
+        v.set_item("cameras_seeing", image_array(py, view.cameras_seeing)?)?;
         if let Some(stack) = view.registered {
-            v.set_item("registered", array(py, &[h, w, stack_channels], stack)?)?;
+            v.set_item("registered", cube_array(py, stack)?)?;
         }
         let visibility = PyDict::new(py);
         visibility.set_item("seen_by_all", view.visibility.seen_by_all)?;

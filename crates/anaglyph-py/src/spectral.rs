@@ -52,7 +52,7 @@ pub fn demux<'py>(
     };
     let c_shape = shape_of(c).ok_or_else(|| type_error("C: expected a 2-D numpy array"))?;
     let [rows, n] = c_shape[..] else {
-        return Err(to_py(Error::mismatch(
+        return Err(to_py(Error::raster(
             "C",
             format!("shape {c_shape:?}"),
             "a 2-D matrix (measurements x unknowns)",

@@ -22,9 +22,9 @@ def test_envi_round_trip_keeps_values_wavelengths_and_names(tmp_path):
 
 
 def test_envi_refuses_mismatched_metadata(tmp_path):
-    with pytest.raises(anaglyph.MismatchError, match="wavelengths"):
+    with pytest.raises(anaglyph.RasterError, match="wavelengths"):
         anaglyph.write_envi(tmp_path / "c.hdr", np.zeros((2, 2, 3), np.float32), wavelengths=[1, 2])
-    with pytest.raises(anaglyph.MismatchError, match="H, W, bands"):
+    with pytest.raises(anaglyph.RasterError, match="H, W, bands"):
         anaglyph.write_envi(tmp_path / "c.hdr", np.zeros((2, 2), np.float32))
     with pytest.raises(FileNotFoundError):
         anaglyph.read_envi(tmp_path / "absent.hdr")

@@ -49,6 +49,12 @@ def test_the_reconstruction_is_close_to_the_truth(tabletop, reconstruction):
     known = np.isfinite(view.disparity) & np.isfinite(truth)
     assert np.mean(np.abs(view.disparity[known] - truth[known]) < 1.0) > 0.8
     assert reconstruction.manifest["views"][0]["name"] == "r0c0"
+    # Per pixel, the cameras that measured it: all eight where the view's summary says
+    # every camera sees, and never more.
+    seeing = view.cameras_seeing
+    assert seeing.shape == (SIZE[1], SIZE[0]) and seeing.dtype == np.uint8
+    assert seeing.max() == 8 and seeing.min() >= 1
+    assert np.mean(seeing == 8) == pytest.approx(view.visibility["seen_by_all"], abs=1e-9)
 
 
 def test_cubes_and_maps_are_the_cli_s_bytes(cli, tmp_path, tabletop, reconstruction):
@@ -118,6 +124,7 @@ def test_to_xarray_labels_the_light_field(reconstruction):
     assert ds["view"].values.tolist() == list(reconstruction.views)
     spectrum = ds["reflectance"].sel(view="r0c0", x=80, y=60)
     np.testing.assert_array_equal(spectrum.values, reconstruction["r0c0"].cube[60, 80])
+    assert ds["visibility"].dims == ("view", "y", "x")
 
 
 def test_progress_reports_every_stage_and_warnings_go_to_logging(tabletop, caplog):

@@ -52,6 +52,13 @@ def test_unknown_keys_and_bad_values_in_a_rig_are_refused():
         anaglyph.Rig.from_toml(text.replace("focal_length_px", "focal_lenght_px"))
     with pytest.raises(anaglyph.NotFoundError, match="paper-2x4"):
         anaglyph.Rig.preset("paper-4x2")
+    # A layout error is its own cause, and still a ValueError.
+    twice = text.replace("row = 0\ncol = 1", "row = 0\ncol = 0", 1)
+    assert twice != text
+    with pytest.raises(anaglyph.RigLayoutError, match="two cameras at row 0 col 0"):
+        anaglyph.Rig.from_toml(twice)
+    with pytest.raises(ValueError):
+        anaglyph.Rig.from_toml(twice)
 
 
 def test_filter_selection_ranks_by_the_condition_number():

@@ -348,7 +348,7 @@ fn validate<I: Sample>(
     options: &DemuxOptions,
 ) -> Result<(usize, bool)> {
     if rows == 0 || rows > MAX_MEASUREMENTS || !c.len().is_multiple_of(rows) || c.is_empty() {
-        return Err(Error::mismatch(
+        return Err(Error::raster(
             "sensing matrix",
             format!("{} values in {rows} rows", c.len()),
             format!("1 to {MAX_MEASUREMENTS} full rows"),
@@ -399,15 +399,18 @@ fn validate<I: Sample>(
             |a, b| (a.0.min(b.0).or(a.0).or(b.0), a.1 || b.1),
         );
     if let Some(i) = first_infinite {
-        return Err(Error::mismatch(
-            format!("measurement of pixel {} channel {}", i / rows, i % rows),
-            "infinite",
-            "a finite value, or NaN for a missing one",
-        ));
+        return Err(Error::NonFinite {
+            what: format!(
+                "measurement of pixel {} channel {} (NaN marks a missing one)",
+                i / rows,
+                i % rows
+            ),
+            value: measurements[i].to_f64(),
+        });
     }
     let complete = !any_missing && mask.is_none_or(|m| m.par_iter().all(|&k| k));
     if output.end > n || output.is_empty() {
-        return Err(Error::mismatch(
+        return Err(Error::setting(
             "demultiplex: output knots",
             format!("{output:?}"),
             format!("a non-empty range within the {n} knots of C"),

@@ -6,6 +6,7 @@
 //! A pixel without a reconstruction (NaN) counts as reflectance 0, so that coverage gaps
 //! lower the score instead of hiding; the coverage is reported beside it.
 
+use crate::disparity::DisparityMap;
 use crate::metrics::{masked_ssim, psnr, spectral_angle};
 use crate::register::ArrayGeometry;
 use crate::{Error, Result};
@@ -117,18 +118,17 @@ pub fn score_cube(
 }
 
 /// The pixels of view `reference` that every other view sees, from the views' true
-/// disparity maps (`disparities[v]` is view v's of `geometry`).
+/// disparity maps (`disparities[v]` is view v's of `geometry`, per column step).
 pub fn seen_by_all_views(
-    disparities: &[Vec<f32>],
+    disparities: &[DisparityMap],
     geometry: &ArrayGeometry,
     reference: usize,
-    width: usize,
-    height: usize,
 ) -> Vec<bool> {
     let own = &disparities[reference];
+    let (width, height) = (own.width, own.height);
     (0..width * height)
         .map(|i| {
-            let d = own[i];
+            let d = own.data[i];
             if !d.is_finite() {
                 return false;
             }
@@ -139,11 +139,12 @@ pub fn seen_by_all_views(
                 }
                 let (sx, sy) = geometry.shift(reference, v);
                 let (px, py) = ((x + sx * d as f64).round(), (y + sy * d as f64).round());
+                let other = &disparities[v];
                 px >= 0.0
                     && py >= 0.0
-                    && px < width as f64
-                    && py < height as f64
-                    && (disparities[v][py as usize * width + px as usize] - d).abs()
+                    && px < other.width as f64
+                    && py < other.height as f64
+                    && (other.data[py as usize * other.width + px as usize] - d).abs()
                         <= SAME_POINT_PX
             })
         })
@@ -184,8 +185,14 @@ mod tests {
     fn a_fronto_parallel_plane_is_seen_except_at_the_borders() {
         let (w, h) = (20, 10);
         let geometry = ArrayGeometry::grid(1, 2, 1.0);
-        let maps = vec![vec![3.0f32; w * h]; 2];
-        let seen = seen_by_all_views(&maps, &geometry, 0, w, h);
+        let plane = DisparityMap::new(
+            w,
+            h,
+            crate::disparity::DisparityConvention::ColumnStep,
+            vec![3.0f32; w * h],
+        )
+        .unwrap();
+        let seen = seen_by_all_views(&[plane.clone(), plane], &geometry, 0);
         for (i, s) in seen.iter().enumerate() {
             assert_eq!(*s, i % w >= 3, "pixel {i}");
         }

@@ -43,7 +43,7 @@ pub fn calibrate_filter(
         ));
     }
     if without.channel_count() != with.channel_count() {
-        return Err(Error::mismatch(
+        return Err(Error::curve(
             "filter calibration",
             format!(
                 "'{}' has {} columns but '{}' has {}",
@@ -223,7 +223,7 @@ mod tests {
         let b = ResponseCurve::from_csv_str("b", "wavelength_nm,x,y\n400,1,1\n500,1,1\n").unwrap();
         assert_eq!(
             calibrate_filter(&a, &b, 0.01).err().map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Curve")
         );
         assert_eq!(
             calibrate_filter(&a, &a, 1.5).err().map(|e| e.kind()),

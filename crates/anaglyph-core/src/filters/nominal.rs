@@ -27,7 +27,7 @@ pub fn gaussian_filter(spec: &str) -> Result<ResponseCurve> {
     let reference = format!("{GAUSSIAN_PREFIX}{spec}");
     let fields: Vec<&str> = spec.split(':').collect();
     if !(2..=3).contains(&fields.len()) {
-        return Err(Error::mismatch(
+        return Err(Error::curve(
             format!("filter '{reference}'"),
             format!("{} fields", fields.len()),
             "gaussian:CENTRE_NM:FWHM_NM or gaussian:CENTRE_NM:FWHM_NM:PEAK",
@@ -35,7 +35,7 @@ pub fn gaussian_filter(spec: &str) -> Result<ResponseCurve> {
     }
     let number = |i: usize, what: &str| -> Result<f64> {
         fields[i].trim().parse::<f64>().map_err(|_| {
-            Error::mismatch(
+            Error::curve(
                 format!("filter '{reference}' {what}"),
                 format!("'{}'", fields[i]),
                 "a number",
@@ -105,8 +105,8 @@ mod tests {
     #[test]
     fn fields_out_of_range_are_named() {
         for (spec, kind, words) in [
-            ("550", "Mismatch", "1 fields"),
-            ("550:forty", "Mismatch", "FWHM"),
+            ("550", "Curve", "1 fields"),
+            ("550:forty", "Curve", "FWHM"),
             ("100:40", "OutOfRange", "centre"),
             ("550:0", "OutOfRange", "FWHM"),
             ("550:40:1.5", "OutOfRange", "peak"),

@@ -267,7 +267,7 @@ pub fn select_filters(
     } = *camera;
     let k = options.count;
     if k == 0 || k > candidates.len() {
-        return Err(Error::mismatch(
+        return Err(Error::setting(
             "filter selection",
             format!("count {k} with {} candidates", candidates.len()),
             format!("a count of 1 to {}", candidates.len()),

@@ -19,7 +19,7 @@ pub fn write_atomically(
         _ => Path::new("."),
     };
     let file_name = path.file_name().ok_or_else(|| {
-        Error::mismatch(
+        Error::output_conflict(
             "output path",
             format!("'{}' without a file name", path.display()),
             "a path to a file",

@@ -210,7 +210,7 @@ pub fn write_png16(path: &Path, image: &LinearImage) -> Result<()> {
         1 => image::ExtendedColorType::L16,
         3 => image::ExtendedColorType::Rgb16,
         c => {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "16-bit PNG output",
                 format!("{c} channels"),
                 "1 or 3",

@@ -309,7 +309,7 @@ impl NpyRowReader {
         use std::io::Read;
         let item = if self.stored_as_f32 { 4 } else { 8 };
         if std::mem::size_of::<T>() != item {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "npy stream buffer element",
                 format!("{} bytes", std::mem::size_of::<T>()),
                 format!("{item} bytes, the stored type"),
@@ -426,7 +426,7 @@ mod tests {
         assert_eq!(streamed, values);
         assert_eq!(
             reader.read_rows(&mut [0f64; 3]).err().map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
     }
 

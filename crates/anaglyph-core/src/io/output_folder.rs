@@ -427,7 +427,7 @@ fn verify_files(dir: &Path, scope: &str) -> Result<VerifiedFolder> {
             what: format!("listed in {} (a partial folder)", manifest_path.display()),
         })?;
         if found != *record {
-            return Err(Error::mismatch(
+            return Err(Error::output_conflict(
                 dir.join(&record.path).display().to_string(),
                 format!("{} bytes, CRC-32 {}", found.bytes, found.crc32),
                 format!(
@@ -440,7 +440,7 @@ fn verify_files(dir: &Path, scope: &str) -> Result<VerifiedFolder> {
     for relative in files_under(dir)? {
         let in_scope = relative.starts_with(scope);
         if in_scope && relative != MANIFEST && !listed.contains(relative.as_str()) {
-            return Err(Error::mismatch(
+            return Err(Error::output_conflict(
                 dir.join(&relative).display().to_string(),
                 "a file the manifest does not list",
                 format!(

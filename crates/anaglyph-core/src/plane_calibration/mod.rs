@@ -155,7 +155,7 @@ pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
         match size {
             None => size = Some((header.width, header.height)),
             Some((w, h)) if (w, h) != (header.width, header.height) => {
-                return Err(Error::mismatch(
+                return Err(Error::captures(
                     path.display().to_string(),
                     format!("{}x{} px", header.width, header.height),
                     format!("{w}x{h} px like the other cameras' captures"),
@@ -187,13 +187,13 @@ pub fn calibrate_to_plane(
     let clock = Instant::now();
     let first = captures
         .first()
-        .ok_or_else(|| Error::mismatch("plane calibration", "no captures", "one per camera"))?;
+        .ok_or_else(|| Error::captures("plane calibration", "no captures", "one per camera"))?;
     let (width, height) = (first.image.width, first.image.height);
     if let Some(odd) = captures
         .iter()
         .find(|c| (c.image.width, c.image.height) != (width, height))
     {
-        return Err(Error::mismatch(
+        return Err(Error::captures(
             format!("checkerboard capture of camera {}", odd.name),
             format!("{}x{} px", odd.image.width, odd.image.height),
             format!("{width}x{height} px like the other cameras'"),
@@ -245,7 +245,7 @@ fn fit_camera(
 ) -> Result<CameraPlaneFit> {
     let name = format!("camera {}", capture.name);
     if corners.len() != target.len() {
-        return Err(Error::mismatch(
+        return Err(Error::calibration(
             name,
             format!("{} corners", corners.len()),
             format!(

@@ -85,7 +85,7 @@ pub(crate) fn find_in(dir: &Path, name: &str, extensions: &[&str], what: &str) -
         .filter(|p| p.is_file())
         .collect();
     if let [first, second, ..] = &found[..] {
-        return Err(Error::mismatch(
+        return Err(Error::captures(
             format!("{what} of camera {name}"),
             format!("both {} and {}", first.display(), second.display()),
             "one file per camera (move the other away)",
@@ -119,7 +119,7 @@ impl CameraFiles {
         let capture = match captures {
             Some(dir) => find_in(dir, &cam.name, &EXTENSIONS, "capture")?,
             None => cam.image.clone().ok_or_else(|| {
-                Error::mismatch(
+                Error::captures(
                     format!("camera {}", cam.name),
                     "no image in the rig file and no --captures folder",
                     "a capture for every camera",
@@ -174,7 +174,7 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
         for path in pictures.into_iter().flatten() {
             let header = read_image_header(path)?;
             if header.channels != channels {
-                return Err(Error::mismatch(
+                return Err(Error::raster(
                     path.display().to_string(),
                     format!("{} channels", header.channels),
                     format!(
@@ -189,7 +189,7 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
                 Some((first_path, size))
                     if (size.width, size.height) != (header.width, header.height) =>
                 {
-                    return Err(Error::mismatch(
+                    return Err(Error::raster(
                         path.display().to_string(),
                         format!("{}x{} pixels", header.width, header.height),
                         format!(
@@ -273,7 +273,7 @@ impl ArrayCaptures {
     /// Checks that all pictures share one size.
     pub fn from_cameras(cameras: Vec<CameraCapture>) -> Result<Self> {
         let Some(first) = cameras.first() else {
-            return Err(Error::mismatch("captures", "no cameras", "at least one"));
+            return Err(Error::captures("captures", "no cameras", "at least one"));
         };
         let (width, height) = (first.capture.width, first.capture.height);
         for cam in &cameras {
@@ -437,7 +437,7 @@ pub fn calibrate(
             }
             (None, Some(exposure)) => ("exposure metadata", vec![exposure; ch], None),
             (None, None) => {
-                return Err(Error::mismatch(
+                return Err(Error::captures(
                     &name,
                     "no white board capture and no exposure metadata",
                     "a white board (rig `white` or --white) or the camera's `exposure` with \

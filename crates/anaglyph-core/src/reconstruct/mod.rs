@@ -54,6 +54,7 @@ pub use settings::{
 pub use summary::ViewSummary;
 
 use crate::disparity::DisparityMap;
+use crate::image::Image;
 use crate::rectify::Rectification;
 use crate::register::{
     check_search_range, ArrayGeometry, CommonSignal, PairAgreement, SearchRange, Visibility,
@@ -91,8 +92,8 @@ pub type Progress<'a> = dyn Fn(Stage, usize, usize) + Sync + 'a;
 pub struct ReconstructedView {
     /// The camera's name (see [`crate::rig::Camera::name`]).
     pub name: String,
-    /// Reflectance, `height × width × bands`, NaN where nothing was measured.
-    pub reflectance: Vec<f32>,
+    /// Reflectance, a channel per band, NaN where nothing was measured.
+    pub reflectance: Image<f32>,
     /// Disparity per column step of the array (the simulator's convention), NaN where
     /// unknown.
     pub disparity: DisparityMap,
@@ -101,6 +102,9 @@ pub struct ReconstructedView {
     /// truth: a failed registration lowers it.
     pub neighbour_agreement: Option<f64>,
     pub visibility: Visibility,
+    /// Per pixel, how many cameras (the view's own included) measured it: 0 where nothing
+    /// was measured, the number of cameras where every camera sees the point.
+    pub cameras_seeing: Image<u8>,
     /// What each stage of the view's solve did.
     pub solve: SolveReport,
     /// Pixels whose disparity registration moved to the plane of their ambiguous
@@ -110,7 +114,7 @@ pub struct ReconstructedView {
     /// With [`PipelineSettings::keep_registered`]: every camera's white-normalised capture
     /// warped into this view, `height × width × Σ channels` in the order of
     /// [`LightField::channel_labels`], NaN where that camera does not see the point.
-    pub registered: Option<Vec<f32>>,
+    pub registered: Option<Image<f32>>,
     /// The view's agreement with each row and column neighbour's map, pixel by pixel.
     pub pair_agreements: Vec<PairAgreement>,
 }
@@ -159,7 +163,7 @@ pub fn reconstruct(
 ) -> Result<LightField> {
     settings.validate()?;
     if rig.cameras.len() < 2 {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             format!("rig '{}'", rig.file.name),
             format!(
                 "one camera ({})",
@@ -217,7 +221,7 @@ fn check_captures_follow_rig(rig: &Rig, captures: &ArrayCaptures) -> Result<()> 
     if follows {
         Ok(())
     } else {
-        Err(Error::mismatch(
+        Err(Error::captures(
             "captures",
             "a different set or order of cameras than the rig's",
             "one capture per camera of the rig, in its order",

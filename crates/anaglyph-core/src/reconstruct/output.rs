@@ -22,7 +22,7 @@
 
 use super::registered_stack::write_registered_stack;
 use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
-use crate::image::Image;
+
 use crate::io::{
     read_envi, read_envi_shape, write_disparity_preview, write_envi, write_pfm, EnviCube,
     OutputFolder,
@@ -109,7 +109,7 @@ impl OutputOptions {
     /// size for every view in `views` (their headers and data sizes; nothing is read yet).
     pub fn check(&self, width: usize, height: usize, bands: usize, views: &[&str]) -> Result<()> {
         if !self.products.cubes() && !self.probes.is_empty() {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "probe",
                 "probes with registered stacks only".to_string(),
                 "cube output (probes plot reflectance spectra)".to_string(),
@@ -117,11 +117,12 @@ impl OutputOptions {
         }
         for &(x, y) in &self.probes {
             if x >= width || y >= height {
-                return Err(Error::mismatch(
-                    "probe",
-                    format!("pixel ({x}, {y})"),
-                    format!("a pixel inside the {width}x{height} image"),
-                ));
+                return Err(Error::ProbeOutside {
+                    x,
+                    y,
+                    width,
+                    height,
+                });
             }
         }
         let Some(truth) = self.truth.as_ref().filter(|_| !self.probes.is_empty()) else {
@@ -187,7 +188,7 @@ pub fn write_light_field(
             })?;
         write_disparity(dir, &name, field, view, span)?;
         if options.products.registered() {
-            let stack = view.registered.as_deref().ok_or(Error::StageDependency {
+            let stack = view.registered.as_ref().ok_or(Error::StageDependency {
                 stage: "registered-stack output",
                 needs: "the warped captures",
                 why: "the pipeline ran without keep_registered",
@@ -199,9 +200,9 @@ pub fn write_light_field(
         }
         write_cube(dir, &name, field, view)?;
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
-        pseudo_colour(&view.reflectance, w, h, &field.bands, &camera.sensor)?.save(&pseudo)?;
+        pseudo_colour(&view.reflectance, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
-        srgb_preview(&view.reflectance, w, h, &field.bands)?.save(&srgb)?;
+        srgb_preview(&view.reflectance, &field.bands)?.save(&srgb)?;
         if !options.probes.is_empty() {
             write_probes(dir, &name, field, view, options)?;
         }
@@ -236,12 +237,7 @@ fn write_cube(dir: &Path, name: &str, field: &LightField, view: &ReconstructedVi
     write_envi(
         &path,
         &EnviCube {
-            image: Image {
-                width: field.width,
-                height: field.height,
-                channels: field.bands.len(),
-                data: view.reflectance.clone(),
-            },
+            image: view.reflectance.clone(),
             wavelengths: Some(field.bands.clone()),
             band_names: None,
         },
@@ -292,18 +288,17 @@ fn write_probes(
     let probes: Vec<Probe> = options
         .probes
         .iter()
-        .map(|&(x, y)| {
-            let i = (y * w + x) * nb;
-            Probe {
-                label: format!("({x}, {y})"),
-                estimate: view.reflectance[i..i + nb]
-                    .iter()
-                    .map(|&v| v as f64)
-                    .collect(),
-                truth: truth
-                    .as_ref()
-                    .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
-            }
+        .map(|&(x, y)| Probe {
+            label: format!("({x}, {y})"),
+            estimate: view
+                .reflectance
+                .pixel(x, y)
+                .iter()
+                .map(|&v| v as f64)
+                .collect(),
+            truth: truth
+                .as_ref()
+                .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
         })
         .collect();
     let svg = dir.join(format!("probes/{name}.svg"));

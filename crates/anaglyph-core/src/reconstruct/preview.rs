@@ -9,6 +9,7 @@
 //! and far reds are darker than a full-range rendering would show them. Pixels without a
 //! reconstruction are drawn mid-grey.
 
+use crate::image::Image;
 use crate::io::write_atomically;
 use crate::spectrum::{Interpolation, ResponseCurve};
 use crate::{builtin, Error, Result};
@@ -26,15 +27,10 @@ const XYZ_TO_SRGB: [[f64; 3]; 3] = [
 /// CIE D65 white point, XYZ with Y = 1.
 const D65_WHITE: [f64; 3] = [0.95047, 1.0, 1.08883];
 
-/// An 8-bit RGB picture.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RgbPreview {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<u8>,
-}
+/// An 8-bit RGB picture (three channels).
+pub type RgbPreview = Image<u8>;
 
-impl RgbPreview {
+impl Image<u8> {
     /// Writes the picture as PNG.
     pub fn save(&self, path: &Path) -> Result<()> {
         write_atomically(path, |out| {
@@ -68,22 +64,20 @@ pub fn srgb_encode(v: f64) -> u8 {
 
 /// Renders every pixel as `weights (3 × bands) · s`, then applies `to_rgb`.
 fn render(
-    reflectance: &[f32],
-    width: usize,
-    height: usize,
-    bands: usize,
+    cube: &Image<f32>,
     weights: &[[f64; 3]],
     to_rgb: impl Fn([f64; 3]) -> [f64; 3],
 ) -> Result<RgbPreview> {
-    if reflectance.len() != width * height * bands || weights.len() != bands {
+    let (width, height, bands) = (cube.width, cube.height, cube.channels);
+    if cube.data.len() != width * height * bands || weights.len() != bands {
         return Err(Error::Shape {
-            op: "colour preview".into(),
-            got: vec![reflectance.len(), weights.len()],
-            expected: vec![width * height * bands, bands],
+            op: "colour preview: cube against the band centres".into(),
+            got: vec![cube.data.len(), bands],
+            expected: vec![width * height * bands, weights.len()],
         });
     }
     let mut data = Vec::with_capacity(width * height * 3);
-    for s in reflectance.chunks_exact(bands) {
+    for s in cube.data.chunks_exact(bands) {
         if s.iter().any(|v| !v.is_finite()) {
             data.extend(UNMEASURED);
             continue;
@@ -96,18 +90,12 @@ fn render(
         }
         data.extend(to_rgb(acc).map(srgb_encode));
     }
-    Ok(RgbPreview {
-        width,
-        height,
-        data,
-    })
+    Image::new(width, height, 3, data)
 }
 
 /// The paper's pseudo-colour rendering through `sensor` (1 or 3 channels).
 pub fn pseudo_colour(
-    reflectance: &[f32],
-    width: usize,
-    height: usize,
+    cube: &Image<f32>,
     centres: &[f64],
     sensor: &ResponseCurve,
 ) -> Result<RgbPreview> {
@@ -129,18 +117,11 @@ pub fn pseudo_colour(
             weights[b][k] = v.max(0.0) / total;
         }
     }
-    render(reflectance, width, height, centres.len(), &weights, |rgb| {
-        rgb
-    })
+    render(cube, &weights, |rgb| rgb)
 }
 
 /// sRGB rendering under D65 (see the module docs).
-pub fn srgb_preview(
-    reflectance: &[f32],
-    width: usize,
-    height: usize,
-    centres: &[f64],
-) -> Result<RgbPreview> {
+pub fn srgb_preview(cube: &Image<f32>, centres: &[f64]) -> Result<RgbPreview> {
     let observer = builtin::any("cie_1931_2deg_cmf")?;
     let d65 = builtin::illuminant("cie_d65")?.sample(0, centres, Interpolation::Linear)?;
     let cmf: Vec<Vec<f64>> = (0..3)
@@ -160,7 +141,7 @@ pub fn srgb_preview(
     let weights: Vec<[f64; 3]> = (0..centres.len())
         .map(|b| [0, 1, 2].map(|c| d65[b] * cmf[c][b] / white_y * D65_WHITE[c] / white[c]))
         .collect();
-    render(reflectance, width, height, centres.len(), &weights, |xyz| {
+    render(cube, &weights, |xyz| {
         XYZ_TO_SRGB.map(|row| row[0] * xyz[0] + row[1] * xyz[1] + row[2] * xyz[2])
     })
 }
@@ -172,15 +153,16 @@ mod tests {
     #[test]
     fn a_perfect_white_is_white_and_black_is_black() {
         let centres: Vec<f64> = (0..24).map(|b| 450.0 + 8.0 * b as f64).collect();
-        let mut cube = vec![1.0f32; 24];
-        cube.extend(vec![0.0f32; 24]);
-        cube.extend(vec![f32::NAN; 24]);
+        let mut values = vec![1.0f32; 24];
+        values.extend(vec![0.0f32; 24]);
+        values.extend(vec![f32::NAN; 24]);
+        let cube = Image::new(3, 1, 24, values).unwrap();
         let sensor = builtin::sensor("canon_eos_5d_mark_ii").unwrap();
-        let pseudo = pseudo_colour(&cube, 3, 1, &centres, &sensor).unwrap();
+        let pseudo = pseudo_colour(&cube, &centres, &sensor).unwrap();
         assert_eq!(&pseudo.data[..3], &[255, 255, 255]);
         assert_eq!(&pseudo.data[3..6], &[0, 0, 0]);
         assert_eq!(&pseudo.data[6..], &UNMEASURED);
-        let srgb = srgb_preview(&cube, 3, 1, &centres).unwrap();
+        let srgb = srgb_preview(&cube, &centres).unwrap();
         assert!(
             srgb.data[..3].iter().all(|&v| v >= 254),
             "{:?}",

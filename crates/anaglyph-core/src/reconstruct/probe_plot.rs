@@ -31,7 +31,7 @@ pub struct Probe {
 /// Writes the chart of `probes` over band centres `centres` to `path` (SVG).
 pub fn plot_probe(path: &Path, title: &str, centres: &[f64], probes: &[Probe]) -> Result<()> {
     let (Some(&lo), Some(&hi)) = (centres.first(), centres.last()) else {
-        return Err(Error::mismatch(
+        return Err(Error::setting(
             "probe plot",
             "no bands",
             "at least one band",
@@ -124,7 +124,7 @@ pub fn plot_series(
         (a.min(y), b.max(y))
     });
     if !(x_hi > x_lo) || !(y_hi >= y_lo) {
-        return Err(Error::mismatch(
+        return Err(Error::setting(
             "chart",
             "fewer than two distinct finite x values",
             "at least two",

@@ -31,7 +31,7 @@ pub(super) fn rectify_array(
         return Ok(None);
     }
     if !without.is_empty() {
-        return Err(Error::mismatch(
+        return Err(Error::calibration(
             "rectification",
             format!(
                 "cameras {} have a calibration but {} have none",
@@ -85,7 +85,7 @@ fn plan_of(rig: &Rig, captures: &ArrayCaptures) -> Result<Rectification> {
             }) => {
                 let size = (captures.width, captures.height);
                 if let Some((w, h)) = image_size.filter(|s| *s != size) {
-                    return Err(Error::mismatch(
+                    return Err(Error::calibration(
                         format!("calibration of camera {}", c.name),
                         format!("a homography made for {w}x{h} px images"),
                         format!("one for the captures' {}x{} px", size.0, size.1),
@@ -100,7 +100,7 @@ fn plan_of(rig: &Rig, captures: &ArrayCaptures) -> Result<Rectification> {
     match (poses.is_empty(), planes.is_empty()) {
         (false, true) => Rectification::plan(poses, w, h),
         (true, false) => Rectification::through_plane(planes, w, h),
-        _ => Err(Error::mismatch(
+        _ => Err(Error::calibration(
             "rectification",
             format!(
                 "{} cameras calibrated with poses and {} with homographies",

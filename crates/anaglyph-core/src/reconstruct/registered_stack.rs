@@ -21,10 +21,17 @@ pub fn write_registered_stack(
     name: &str,
     rig: &Rig,
     field: &LightField,
-    stack: &[f32],
+    stack: &Image<f32>,
 ) -> Result<()> {
     let channels = field.channel_labels.len();
-    let image = Image::new(field.width, field.height, channels, stack.to_vec())?;
+    if (stack.width, stack.height, stack.channels) != (field.width, field.height, channels) {
+        return Err(Error::Shape {
+            op: format!("registered stack of view {name}"),
+            got: vec![stack.width, stack.height, stack.channels],
+            expected: vec![field.width, field.height, channels],
+        });
+    }
+    let image = stack.clone();
     let firsts: Vec<usize> = (0..rig.cameras.len())
         .map(|m| rig.channel_rows(m).start)
         .collect();

@@ -22,8 +22,8 @@ use crate::{Error, Result};
 /// The array's disparity maps and what registration reports about them.
 #[derive(Default)]
 pub(super) struct RegisteredArray {
-    /// Per camera (rig order).
-    pub disparities: Vec<Vec<f32>>,
+    /// Per camera (rig order), per column step of the array.
+    pub disparities: Vec<DisparityMap>,
     pub search_range: Option<SearchRange>,
     pub common_signals: Option<Vec<CommonSignal>>,
     pub moved_to_planes: Option<Vec<usize>>,
@@ -50,11 +50,10 @@ pub(super) fn register_array(
             estimate_maps(captures, calibrated, search, settings, log, progress)?
         }
     };
-    let (w, h) = (captures.width, captures.height);
     let maps = &registered.disparities;
-    registered.agreement = neighbour_agreement(maps, &geometry, w, h);
+    registered.agreement = neighbour_agreement(maps, &geometry);
     registered.pair_agreements = (0..maps.len())
-        .map(|i| pair_agreements(maps, &geometry, i, w, h))
+        .map(|i| pair_agreements(maps, &geometry, i))
         .collect();
     Ok(registered)
 }
@@ -80,7 +79,7 @@ fn given_maps(
         )?;
     }
     Ok(RegisteredArray {
-        disparities: given.iter().map(|map| map.data.clone()).collect(),
+        disparities: given.to_vec(),
         ..Default::default()
     })
 }

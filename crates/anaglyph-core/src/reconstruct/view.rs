@@ -8,7 +8,7 @@
 use super::{CalibratedArray, PipelineSettings, ReconstructedView, RegisteredArray};
 use super::{Progress, RunLog, Stage};
 use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
-use crate::disparity::{DisparityConvention, DisparityMap};
+use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
 use crate::solve::{SolveContext, SolvePlan, ViewSolve};
@@ -89,6 +89,7 @@ impl<'a> ViewPass<'a> {
             measurements,
             visibility,
             disputed,
+            cameras_seeing,
         } = gather_measurements(
             v,
             self.context.views,
@@ -98,7 +99,15 @@ impl<'a> ViewPass<'a> {
             self.settings.warp_kernel,
         )?;
         seconds[0] += start.elapsed().as_secs_f64();
-        let registered = self.settings.keep_registered.then(|| measurements.clone());
+        let image = &self.context.views[v].image;
+        let (w, h) = (image.width, image.height);
+        let registered = match self.settings.keep_registered {
+            true => {
+                let rows = measurements.len() / (w * h).max(1);
+                Some(Image::new(w, h, rows, measurements.clone())?)
+            }
+            false => None,
+        };
         let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
         self.plan.run(&mut solve, &mut seconds[1..])?;
         let cam = &self.rig.cameras[v];
@@ -121,15 +130,11 @@ impl<'a> ViewPass<'a> {
         }
         Ok(ReconstructedView {
             name: cam.name.clone(),
-            reflectance: solve.spectra,
-            disparity: DisparityMap {
-                width: self.context.views[v].image.width,
-                height: self.context.views[v].image.height,
-                convention: DisparityConvention::ColumnStep,
-                data: self.registered.disparities[v].clone(),
-            },
+            reflectance: Image::new(w, h, solve.knots.len(), solve.spectra)?,
+            disparity: self.registered.disparities[v].clone(),
             neighbour_agreement: agreement.is_finite().then_some(agreement),
             visibility,
+            cameras_seeing,
             solve: solve.report,
             moved_to_planes: self.registered.moved_to_planes.as_ref().map(|m| m[v]),
             registered,

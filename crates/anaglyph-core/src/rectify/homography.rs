@@ -224,7 +224,7 @@ impl Homography {
     /// normalised DLT (Hartley & Zisserman, Alg. 4.2); at least 4 pairs, not collinear.
     pub fn fit(from: &[[f64; 2]], to: &[[f64; 2]]) -> Result<Self> {
         if from.len() != to.len() || from.len() < 4 {
-            return Err(Error::mismatch(
+            return Err(Error::calibration(
                 "homography fit",
                 format!("{} and {} points", from.len(), to.len()),
                 "as many points on both sides, at least 4",
@@ -273,7 +273,7 @@ impl Homography {
     /// 3 pairs, not collinear.
     pub fn fit_affine(from: &[[f64; 2]], to: &[[f64; 2]]) -> Result<Self> {
         if from.len() != to.len() || from.len() < 3 {
-            return Err(Error::mismatch(
+            return Err(Error::calibration(
                 "affine fit",
                 format!("{} and {} points", from.len(), to.len()),
                 "as many points on both sides, at least 3",

@@ -176,7 +176,7 @@ fn fit_layout(cameras: &[([f64; 2], [f64; 3])]) -> Result<[[f64; 3]; 3]> {
 /// At least one camera, of at least 2×2 pixels.
 fn check_array_size(cameras: usize, width: usize, height: usize) -> Result<()> {
     if cameras == 0 || width < 2 || height < 2 {
-        return Err(Error::mismatch(
+        return Err(Error::raster(
             "rectification",
             format!("{cameras} cameras of {width}x{height} px"),
             "at least one camera of at least 2x2 px",
@@ -197,7 +197,7 @@ impl Rectification {
         for (name, _, model) in &cameras {
             if let Some((w, h)) = model.image_size {
                 if (w, h) != (width, height) {
-                    return Err(Error::mismatch(
+                    return Err(Error::calibration(
                         format!("calibration of camera {name}"),
                         format!("made for {w}x{h} px images"),
                         format!("the captures' {width}x{height}"),

@@ -49,7 +49,7 @@ pub fn guided_filter(
     let (guide, input) = (guide.data.as_slice(), input.data.as_slice());
     let n = width * height;
     if channels == 0 || channels > MAX_GUIDE_CHANNELS {
-        return Err(Error::mismatch(
+        return Err(Error::raster(
             "guided filter",
             format!("{channels} guide channels"),
             format!("1 to {MAX_GUIDE_CHANNELS}"),
@@ -64,7 +64,7 @@ pub fn guided_filter(
     }
     if let Some(weights) = weights {
         if weights.len() != n || weights.iter().any(|w| !(*w >= 0.0) || !w.is_finite()) {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "guided filter weights",
                 format!("{} weights", weights.len()),
                 format!("{n}, one per pixel, each finite and >= 0"),
@@ -620,7 +620,7 @@ mod tests {
             )
             .err()
             .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
     }
 
@@ -650,7 +650,7 @@ mod tests {
             )
             .err()
             .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
         let zero = GuidedFilter {
             epsilon: 0.0,

@@ -93,7 +93,7 @@ pub fn refine_view(
     if white_response.len() != view.image.channels
         || white_response.iter().any(|r| !(*r > 0.0) || !r.is_finite())
     {
-        return Err(Error::mismatch(
+        return Err(Error::captures(
             "white responses of the guiding camera".to_string(),
             format!("{white_response:?}"),
             format!("{} positive, finite values", view.image.channels),

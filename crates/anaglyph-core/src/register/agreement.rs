@@ -10,6 +10,7 @@
 //! wrong match, pull it down.
 
 use super::ArrayGeometry;
+use crate::disparity::DisparityMap;
 use crate::stereo::LEFT_RIGHT_TOLERANCE;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -21,43 +22,38 @@ use serde::Serialize;
 /// true disparities give 0.951–1.000 on all three (occlusions keep them below 1).
 pub const LOW_AGREEMENT_WARNING: f64 = 0.9;
 
-/// The value of `map` (a neighbour's, `width × height`) at the pixel nearest to where the
-/// point of pixel (x, y) at disparity `d` lands (`shift` per unit disparity); None
-/// outside the frame.
-fn at_match(
-    map: &[f32],
-    (width, height): (usize, usize),
-    (x, y): (f64, f64),
-    d: f32,
-    shift: (f64, f64),
-) -> Option<f32> {
+/// The value of `map` (a neighbour's) at the pixel nearest to where the point of pixel
+/// (x, y) at disparity `d` lands (`shift` per unit disparity); None outside its frame.
+fn at_match(map: &DisparityMap, (x, y): (f64, f64), d: f32, shift: (f64, f64)) -> Option<f32> {
+    let (width, height) = (map.width, map.height);
     let (xs, ys) = (
         (x + shift.0 * d as f64).round(),
         (y + shift.1 * d as f64).round(),
     );
     let inside = xs >= 0.0 && ys >= 0.0 && xs < width as f64 && ys < height as f64;
-    inside.then(|| map[ys as usize * width + xs as usize])
+    inside.then(|| map.data[ys as usize * width + xs as usize])
 }
 
 /// View `i`'s map with NaN wherever no neighbour's map agrees within
 /// [`LEFT_RIGHT_TOLERANCE`] at the corresponding pixel. A view without neighbours is
 /// returned as it is.
 pub fn confirmed_by_neighbours(
-    disparities: &[Vec<f32>],
+    disparities: &[DisparityMap],
     geometry: &ArrayGeometry,
     i: usize,
-    width: usize,
-    height: usize,
-) -> Vec<f32> {
+) -> DisparityMap {
+    let own = &disparities[i];
+    let width = own.width;
     let neighbours: Vec<(usize, (f64, f64))> = geometry
         .neighbours(i)
         .into_iter()
         .map(|j| (j, geometry.shift(i, j)))
         .collect();
     if neighbours.is_empty() {
-        return disparities[i].clone();
+        return own.clone();
     }
-    disparities[i]
+    let data = own
+        .data
         .par_iter()
         .enumerate()
         .map(|(p, &d)| {
@@ -66,7 +62,7 @@ pub fn confirmed_by_neighbours(
             }
             let (x, y) = ((p % width) as f64, (p / width) as f64);
             let confirmed = neighbours.iter().any(|&(j, shift)| {
-                at_match(&disparities[j], (width, height), (x, y), d, shift)
+                at_match(&disparities[j], (x, y), d, shift)
                     .is_some_and(|other| (other - d).abs() <= LEFT_RIGHT_TOLERANCE)
             });
             if confirmed {
@@ -75,24 +71,21 @@ pub fn confirmed_by_neighbours(
                 f32::NAN
             }
         })
-        .collect()
+        .collect();
+    DisparityMap { data, ..*own }
 }
 
 /// For every view, the fraction of its pixels with a disparity that a neighbour confirms (see [`confirmed_by_neighbours`]); NaN for a view with no finite
 /// disparity, 1 for a view without neighbours.
-pub fn neighbour_agreement(
-    disparities: &[Vec<f32>],
-    geometry: &ArrayGeometry,
-    width: usize,
-    height: usize,
-) -> Vec<f64> {
+pub fn neighbour_agreement(disparities: &[DisparityMap], geometry: &ArrayGeometry) -> Vec<f64> {
     (0..disparities.len())
         .map(|i| {
-            let known = disparities[i].iter().filter(|d| d.is_finite()).count();
+            let known = disparities[i].data.iter().filter(|d| d.is_finite()).count();
             if known == 0 {
                 return f64::NAN;
             }
-            let confirmed = confirmed_by_neighbours(disparities, geometry, i, width, height)
+            let confirmed = confirmed_by_neighbours(disparities, geometry, i)
+                .data
                 .iter()
                 .filter(|d| d.is_finite())
                 .count();
@@ -116,24 +109,23 @@ pub struct PairAgreement {
 
 /// View `i`'s agreement with each of its neighbours, one by one.
 pub fn pair_agreements(
-    disparities: &[Vec<f32>],
+    disparities: &[DisparityMap],
     geometry: &ArrayGeometry,
     i: usize,
-    width: usize,
-    height: usize,
 ) -> Vec<PairAgreement> {
+    let width = disparities[i].width;
     geometry
         .neighbours(i)
         .into_iter()
         .map(|j| {
             let shift = geometry.shift(i, j);
             let (mut agreeing, mut compared) = (0usize, 0usize);
-            for (p, &d) in disparities[i].iter().enumerate() {
+            for (p, &d) in disparities[i].data.iter().enumerate() {
                 let xy = ((p % width) as f64, (p / width) as f64);
                 if !d.is_finite() {
                     continue;
                 }
-                let other = at_match(&disparities[j], (width, height), xy, d, shift);
+                let other = at_match(&disparities[j], xy, d, shift);
                 if let Some(other) = other.filter(|o| o.is_finite()) {
                     compared += 1;
                     agreeing += usize::from((other - d).abs() <= LEFT_RIGHT_TOLERANCE);
@@ -151,6 +143,7 @@ pub fn pair_agreements(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::disparity::DisparityConvention;
 
     /// A fronto-parallel plane at disparity 3 seen by a 2×2 array: every map agrees
     /// wherever the neighbour sees the point. Corrupting a block of one view's map
@@ -159,9 +152,10 @@ mod tests {
     fn agreement_counts_the_pixels_a_neighbour_confirms() {
         let (w, h) = (20usize, 16usize);
         let geometry = ArrayGeometry::grid(2, 2, 1.0);
-        let plane = vec![3.0f32; w * h];
+        let plane =
+            DisparityMap::new(w, h, DisparityConvention::ColumnStep, vec![3.0f32; w * h]).unwrap();
         let mut maps = vec![plane.clone(); 4];
-        let agreement = neighbour_agreement(&maps, &geometry, w, h);
+        let agreement = neighbour_agreement(&maps, &geometry);
         // View (0, 0) finds its right neighbour at x − 3 (in frame for x ≥ 3) and the one
         // below at y − 3 (y ≥ 3): only the 3×3 corner x, y < 3 has neither.
         let expected = 1.0 - 9.0 / (w * h) as f64;
@@ -171,23 +165,23 @@ mod tests {
         // View (0, 0) claims disparity 8 in a 5×4 block: no neighbour agrees there.
         for y in 6..10 {
             for x in 8..13 {
-                maps[0][y * w + x] = 8.0;
+                maps[0].data[y * w + x] = 8.0;
             }
         }
-        let confirmed = confirmed_by_neighbours(&maps, &geometry, 0, w, h);
-        assert!(confirmed[7 * w + 10].is_nan());
-        assert_eq!(confirmed[12 * w + 15], 3.0);
-        let agreement = neighbour_agreement(&maps, &geometry, w, h);
+        let confirmed = confirmed_by_neighbours(&maps, &geometry, 0);
+        assert!(confirmed.data[7 * w + 10].is_nan());
+        assert_eq!(confirmed.data[12 * w + 15], 3.0);
+        let agreement = neighbour_agreement(&maps, &geometry);
         let expected0 = 1.0 - (9.0 + 20.0) / (w * h) as f64;
         assert!((agreement[0] - expected0).abs() < 1e-12, "{}", agreement[0]);
         // Pair by pair: the right neighbour compares x ≥ 3 and disagrees on the block.
-        let pairs = pair_agreements(&maps, &geometry, 0, w, h);
+        let pairs = pair_agreements(&maps, &geometry, 0);
         assert_eq!(pairs.len(), 2);
         let right = pairs.iter().find(|p| p.neighbour == "r0c1").unwrap();
         assert_eq!(right.compared, (w - 3) * h);
         assert!((right.agreeing - (1.0 - 20.0 / ((w - 3) * h) as f64)).abs() < 1e-12);
         // Unknown pixels count neither way; a map with none is NaN.
-        maps[3] = vec![f32::NAN; w * h];
-        assert!(neighbour_agreement(&maps, &geometry, w, h)[3].is_nan());
+        maps[3].data = vec![f32::NAN; w * h];
+        assert!(neighbour_agreement(&maps, &geometry)[3].is_nan());
     }
 }

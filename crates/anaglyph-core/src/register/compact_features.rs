@@ -15,13 +15,7 @@ use std::arch::x86_64::{
 /// all views' features are held at once, 4.2 GB as f32 for eight 1920×1080 views, half that
 /// as bf16. The cosine of unit 64-d features moves by about 1e-3, well below the cost
 /// differences between disparities.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CompactFeatures {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    pub data: Vec<u16>,
-}
+pub type CompactFeatures = crate::image::Image<u16>;
 
 impl From<FeatureMap> for CompactFeatures {
     fn from(map: FeatureMap) -> Self {

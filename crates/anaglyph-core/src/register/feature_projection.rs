@@ -38,7 +38,7 @@ impl FeatureProjection {
         let c = maps.first().map_or(0, |m| m.channels);
         let pixels = maps.first().map_or(0, |m| m.width * m.height);
         if k == 0 || c == 0 || pixels == 0 || dims == 0 || dims > k * c {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "feature projection",
                 format!("{k} maps of {c} channels and {pixels} pixels onto {dims} dimensions"),
                 "at least one non-empty map, and at most as many dimensions as channels",
@@ -48,7 +48,7 @@ impl FeatureProjection {
             .iter()
             .any(|m| m.channels != c || m.width * m.height != pixels)
         {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "feature projection",
                 "maps of different sizes or widths",
                 "maps of one size and width",
@@ -143,7 +143,7 @@ impl FeatureProjection {
     /// maps (one per matching image, in the order the projection was fitted with).
     pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
         if maps.len() != self.images() {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 "feature projection",
                 format!("{} maps", maps.len()),
                 format!("{}, as the projection was fitted on", self.images()),
@@ -166,7 +166,7 @@ impl FeatureProjection {
                 || map.channels != self.channels
                 || (map.width, map.height) != (out.width, out.height)
             {
-                return Err(Error::mismatch(
+                return Err(Error::raster(
                     "feature projection",
                     "features of another size or depth",
                     "the features the projection was fitted on",
@@ -175,7 +175,7 @@ impl FeatureProjection {
             self.accumulate(j, &map, &mut out.data);
         }
         let mut merged = merged
-            .ok_or_else(|| Error::mismatch("feature projection", "no images", "at least one"))?;
+            .ok_or_else(|| Error::raster("feature projection", "no images", "at least one"))?;
         merged.data.par_chunks_mut(self.dims).for_each(|f| {
             let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
             if norm > 0.0 {
@@ -235,7 +235,7 @@ mod tests {
                 .merged_maps(view_b[..1].to_vec())
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
         for p in [0, 17, 199] {
             let expected = 0.5
@@ -283,14 +283,14 @@ mod tests {
             FeatureProjection::fit(std::slice::from_ref(&a), c + 1)
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
         assert_eq!(
             projection
                 .merge([a.clone(), a.clone(), a].into_iter())
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Raster")
         );
     }
 }

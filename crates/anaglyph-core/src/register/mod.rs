@@ -53,6 +53,7 @@ pub use warp::{
     CONSISTENCY_PX,
 };
 
+use crate::disparity::DisparityMap;
 use crate::stereo::{DisparityRange, GreyImage, MatchingCost};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -137,11 +138,12 @@ pub fn fill_from_nearest(row: &mut [f32]) {
     }
 }
 
-/// A disparity map per view (in `images` order, NaN where nothing could be estimated), the
-/// seconds each stage took and what the plane step changed.
+/// A disparity map per view (in `images` order, per column step of the array, NaN where
+/// nothing could be estimated), the seconds each stage took and what the plane step
+/// changed.
 #[derive(Debug, Clone)]
 pub struct Registration {
-    pub disparities: Vec<Vec<f32>>,
+    pub disparities: Vec<DisparityMap>,
     pub timings: Vec<(String, f64)>,
     /// Per view, the pixels that [`resolve_ambiguous_planes`] moved to the plane of their
     /// ambiguous region (None: the mode has no such step).
@@ -166,7 +168,7 @@ pub fn register_views(
 
 fn validate(images: &[ViewImage], geometry: &ArrayGeometry, range: DisparityRange) -> Result<()> {
     let Some(first) = images.first() else {
-        return Err(Error::mismatch("registration", "no views", "at least one"));
+        return Err(Error::raster("registration", "no views", "at least one"));
     };
     if images.len() != geometry.len() {
         return Err(Error::Shape {
@@ -190,7 +192,7 @@ fn validate(images: &[ViewImage], geometry: &ArrayGeometry, range: DisparityRang
         .iter()
         .find(|p| !(p[0].is_finite() && p[1].is_finite()))
     {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             "registration",
             format!("a view at [{}, {}]", p[0], p[1]),
             "finite positions",
@@ -209,7 +211,7 @@ pub fn check_search_range(
 ) -> Result<()> {
     let longest = (range.magnitude() as f64 * geometry.longest_neighbour_shift()).ceil() as usize;
     if range.count() < 2 || longest >= w.min(h) {
-        return Err(Error::mismatch(
+        return Err(Error::disparity_range(
             "search range",
             format!(
                 "{range}: {} disparities, up to {longest} px along the longer baseline",

@@ -6,6 +6,7 @@
 
 use super::RegistrationSettings;
 use super::{fill_from_background, ArrayGeometry, Registration, ViewImage, SUBPIXEL_WINDOW_RADIUS};
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::stereo::{match_pair, match_vertical, GreyImage, LeftRight, MatchSettings};
 use crate::{Error, Result};
 use std::time::Instant;
@@ -129,7 +130,7 @@ pub fn pairwise_disparities(
         })
     });
     if let Some(i) = alone {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             "pairwise registration",
             format!(
                 "camera {} with no other camera on its row or column",
@@ -151,7 +152,12 @@ pub fn pairwise_disparities(
         column_seconds += clock.elapsed().as_secs_f64();
         let mut fused = fuse(row, column, w * h);
         fill_from_background(&mut fused, w);
-        disparities.push(fused);
+        disparities.push(DisparityMap::new(
+            w,
+            h,
+            DisparityConvention::ColumnStep,
+            fused,
+        )?);
         progress(i + 1, images.len());
     }
     Ok(Registration {

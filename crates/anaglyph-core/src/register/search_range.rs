@@ -10,6 +10,7 @@
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
 use super::{register_views, ArrayGeometry, RegistrationSettings, ViewImage};
+use crate::disparity::DisparityMap;
 use crate::stereo::{DisparityRange, GreyImage};
 use crate::{Error, Result};
 use serde::Serialize;
@@ -96,7 +97,11 @@ pub fn estimate_search_range(
 ) -> Result<SearchRange> {
     let clock = Instant::now();
     let Some(first) = images.first() else {
-        return Err(Error::mismatch("search range", "no views", "at least one"));
+        return Err(Error::disparity_range(
+            "search range",
+            "no views",
+            "at least one",
+        ));
     };
     let (w, h) = (first.image.width, first.image.height);
     let span = geometry.extent()[0].max(1.0);
@@ -118,7 +123,7 @@ pub fn estimate_search_range(
     let coarse_range =
         DisparityRange::new(-((coarse_max / NEGATIVE_SHARE) as i32), coarse_max as i32)?;
     if coarse_w < 16 || h / factor < 16 {
-        return Err(Error::mismatch(
+        return Err(Error::disparity_range(
             "search range",
             format!("{w}x{h} px, too small to estimate a range"),
             "a larger image, or a search range given (--disp-range MIN:MAX)",
@@ -184,7 +189,7 @@ const AGREEMENT_PX: f32 = 1.0;
 /// to −22:30 (and cost 1 dB); with the check it is −10:11.
 fn agreeing_disparities(
     views: &[ViewImage],
-    maps: &[Vec<f32>],
+    maps: &[DisparityMap],
     geometry: &ArrayGeometry,
     v: usize,
 ) -> Vec<f32> {
@@ -200,7 +205,7 @@ fn agreeing_disparities(
         view.measured
             .as_deref()
             .is_none_or(|m| m[i])
-            .then_some(maps[j][i])
+            .then_some(maps[j].data[i])
     };
     let w = views[v].image.width;
     let shifts: Vec<(usize, (f64, f64))> = (0..views.len())
@@ -216,6 +221,7 @@ fn agreeing_disparities(
         agreeing.count() >= needed
     };
     maps[v]
+        .data
         .iter()
         .enumerate()
         .filter(|&(i, &d)| {

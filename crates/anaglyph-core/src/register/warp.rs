@@ -29,6 +29,7 @@
 //! agree with the rest ([`crate::solve::DisputedMeasurements`]).
 
 use super::ArrayGeometry;
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::image::Image;
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -114,12 +115,14 @@ pub struct Gathered {
     /// `pixels × cameras`: the measurement was admitted against the source camera's map
     /// (empty with [`Admission::SourceMaps`]).
     pub disputed: Vec<bool>,
+    /// Per pixel, how many cameras (the reference included) measured it.
+    pub cameras_seeing: Image<u8>,
 }
 
 /// Checks that every view and map has the reference's size.
 fn check_sizes(
     views: &[NormalisedView],
-    disparities: &[Vec<f32>],
+    disparities: &[DisparityMap],
     geometry: &ArrayGeometry,
     me: &NormalisedView,
 ) -> Result<()> {
@@ -135,13 +138,20 @@ fn check_sizes(
         if v.image.width != w
             || v.image.height != h
             || v.image.data.len() != w * h * v.image.channels
-            || d.len() != w * h
+            || (d.width, d.height, d.data.len()) != (w, h, w * h)
         {
             return Err(Error::Shape {
-                op: format!("warping: view {name}"),
-                got: vec![v.image.width, v.image.height, v.image.channels, d.len()],
-                expected: vec![w, h, v.image.channels, w * h],
+                op: format!("warping: view {name} and its disparity map"),
+                got: vec![v.image.width, v.image.height, d.width, d.height],
+                expected: vec![w, h, w, h],
             });
+        }
+        if d.convention != DisparityConvention::ColumnStep {
+            return Err(Error::setting(
+                format!("warping: view {name}'s disparity map"),
+                format!("{:?}", d.convention),
+                "disparities per column step of the array",
+            ));
         }
     }
     Ok(())
@@ -160,19 +170,21 @@ struct PixelGather<'a> {
 impl PixelGather<'_> {
     /// Gathers pixel (x, y) of the reference from every camera into `out` (its rows of C),
     /// marking disputed measurements in `disputed_row` and counting into `seen` (per
-    /// camera measured, per camera disputed, then all measured).
+    /// camera measured, per camera disputed, then all measured). Returns how many cameras
+    /// measured it.
     fn pixel(
         &self,
         (x, y): (usize, usize),
         out: &mut [f32],
         disputed_row: &mut [bool],
         seen: &mut [usize],
-    ) {
+    ) -> u8 {
         let cameras = self.sources.len();
         let i = y * self.sources[self.reference].view.image.width + x;
         out.fill(f32::NAN);
         let d = self.own[i];
         let mut all = true;
+        let mut cameras_seeing = 0u8;
         for (v, source) in self.sources.iter().enumerate() {
             let ch = source.view.image.channels;
             let dst = &mut out[self.first_rows[v]..][..ch];
@@ -180,6 +192,7 @@ impl PixelGather<'_> {
                 dst.copy_from_slice(&source.view.image.data[i * ch..][..ch]);
                 let ok = dst.iter().all(|m| m.is_finite());
                 seen[v] += usize::from(ok);
+                cameras_seeing = cameras_seeing.saturating_add(u8::from(ok));
                 all &= ok;
                 continue;
             }
@@ -197,9 +210,11 @@ impl PixelGather<'_> {
             }
             let ok = admitted != Admitted::No;
             seen[v] += usize::from(ok);
+            cameras_seeing = cameras_seeing.saturating_add(u8::from(ok));
             all &= ok;
         }
         seen[2 * cameras] += usize::from(all);
+        cameras_seeing
     }
 }
 
@@ -208,7 +223,7 @@ impl PixelGather<'_> {
 pub fn gather_measurements(
     reference: usize,
     views: &[NormalisedView],
-    disparities: &[Vec<f32>],
+    disparities: &[DisparityMap],
     geometry: &ArrayGeometry,
     admission: Admission,
     kernel: WarpKernel,
@@ -228,7 +243,7 @@ pub fn gather_measurements(
     let shifts: Vec<(f64, f64)> = (0..views.len())
         .map(|v| geometry.shift(reference, v))
         .collect();
-    let own = &disparities[reference];
+    let own = &disparities[reference].data;
     let nearest: Vec<Vec<f32>> = shifts
         .iter()
         .enumerate()
@@ -246,7 +261,7 @@ pub fn gather_measurements(
         .enumerate()
         .map(|(v, view)| Source {
             view,
-            disparity: &disparities[v],
+            disparity: &disparities[v].data,
             shift: shifts[v],
             nearest: &nearest[v],
             kernel: kernel.as_ref(),
@@ -273,16 +288,18 @@ pub fn gather_measurements(
     } else {
         (0..h).map(|_| <&mut [bool]>::default()).collect()
     };
+    let mut cameras_seeing = vec![0u8; w * h];
     let counts: Vec<Vec<usize>> = measurements
         .par_chunks_mut(w * rows)
         .zip(disputed_rows.par_iter_mut())
+        .zip(cameras_seeing.par_chunks_mut(w))
         .enumerate()
-        .map(|(y, (out_row, disputed_row))| {
+        .map(|(y, ((out_row, disputed_row), seeing_row))| {
             // Per camera: measured, disputed; then the pixels every camera measured.
             let mut seen = vec![0usize; 2 * cameras + 1];
-            for x in 0..w {
+            for (x, seeing) in seeing_row.iter_mut().enumerate() {
                 let out = &mut out_row[x * rows..][..rows];
-                gather.pixel((x, y), out, disputed_row, &mut seen);
+                *seeing = gather.pixel((x, y), out, disputed_row, &mut seen);
             }
             seen
         })
@@ -298,6 +315,7 @@ pub fn gather_measurements(
             disputed_fraction: (cameras..2 * cameras).map(total).collect(),
         },
         disputed,
+        cameras_seeing: Image::new(w, h, 1, cameras_seeing)?,
     })
 }
 
@@ -641,6 +659,23 @@ fn flat_between(
 mod tests {
     use super::*;
 
+    /// [`gather_measurements`] with `maps` as column-step maps of the views' size.
+    fn gather(
+        reference: usize,
+        views: &[NormalisedView],
+        maps: &[Vec<f32>],
+        geometry: &ArrayGeometry,
+        admission: Admission,
+        kernel: WarpKernel,
+    ) -> Result<Gathered> {
+        let (w, h) = (views[0].image.width, views[0].image.height);
+        let maps = maps
+            .iter()
+            .map(|m| DisparityMap::new(w, h, DisparityConvention::ColumnStep, m.clone()))
+            .collect::<Result<Vec<_>>>()?;
+        gather_measurements(reference, views, &maps, geometry, admission, kernel)
+    }
+
     /// Two cameras on a row looking at a plane at disparity 2 with a nearer square
     /// (disparity 5) in front: the right camera's values come back where visible, and the
     /// pixels of the plane the square hides from it are masked.
@@ -701,8 +736,9 @@ mod tests {
         let Gathered {
             measurements: m,
             visibility,
+            cameras_seeing,
             ..
-        } = gather_measurements(
+        } = gather(
             0,
             &views,
             &[left_d.clone(), right_d],
@@ -724,6 +760,12 @@ mod tests {
         }
         assert_eq!(visibility.measured_fraction[0], 1.0);
         assert!((visibility.seen_by_all - (w - 5) as f64 / w as f64).abs() < 1e-9);
+        // Per pixel: both cameras where the right one sees the point, the reference alone
+        // where it is hidden.
+        for x in 0..w {
+            let hidden = (17..20).contains(&x) || x < 2;
+            assert_eq!(cameras_seeing.at(x, y), if hidden { 1 } else { 2 }, "x {x}");
+        }
     }
 
     /// A fine texture (periods of 5 and 7 px) on a plane at a fractional disparity, seen
@@ -758,7 +800,7 @@ mod tests {
             })
             .collect();
         let maps = vec![vec![d; w * h]; 4];
-        let gathered = gather_measurements(
+        let gathered = gather(
             0,
             &views,
             &maps,
@@ -767,7 +809,7 @@ mod tests {
             WarpKernel::Lanczos3,
         )
         .unwrap();
-        let bilinear_warp = gather_measurements(
+        let bilinear_warp = gather(
             0,
             &views,
             &maps,
@@ -812,7 +854,7 @@ mod tests {
                 *m = d + 3.0;
             }
         }
-        let gathered = gather_measurements(
+        let gathered = gather(
             0,
             &views,
             &maps,
@@ -887,7 +929,7 @@ mod tests {
                 },
             })
             .collect();
-        let gathered = gather_measurements(
+        let gathered = gather(
             0,
             &views,
             &[left_d, right_d],
@@ -967,7 +1009,7 @@ mod tests {
         let (views, maps) = periodic_plane_and_a_hidden_object();
         let w = views[0].image.width;
         let geometry = ArrayGeometry::grid(1, 2, 1.0);
-        let strict = gather_measurements(
+        let strict = gather(
             0,
             &views,
             &maps,
@@ -982,7 +1024,7 @@ mod tests {
             strict.measurements.chunks_exact(2).all(|m| m[1].is_nan()),
             "the right map disagrees everywhere"
         );
-        let gathered = gather_measurements(
+        let gathered = gather(
             0,
             &views,
             &maps,

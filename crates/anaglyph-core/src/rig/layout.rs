@@ -52,7 +52,7 @@ pub(super) fn place_cameras(file: &RigFile) -> Result<Vec<Placement>> {
         (_, 0) => grid_placements(file, &rig)?,
         (0, _) => free_placements(file, &rig)?,
         _ => {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 &rig,
                 format!("{on_grid} cameras with row/col and {free} with position_mm"),
                 "row and col for every camera (a grid) or position_mm for every camera",
@@ -100,14 +100,14 @@ fn shortest_distance(placements: &[Placement]) -> Option<f64> {
 /// A complete grid without duplicates, row-major.
 fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
     let (Some(rows), Some(cols), Some(b)) = (file.rows, file.cols, file.baseline_mm) else {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             "cameras on a grid (row/col) without the rig's rows, cols and baseline_mm",
             "rows, cols and baseline_mm for a grid, or position_mm for every camera",
         ));
     };
     if rows == 0 || cols == 0 || rows > MAX_RIG_SIDE || cols > MAX_RIG_SIDE {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             format!("{rows} x {cols} cameras"),
             format!("1 to {MAX_RIG_SIDE} per side"),
@@ -115,7 +115,7 @@ fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
     }
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if !(positive(b.horizontal) && positive(b.vertical)) {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             format!("baseline {} x {} mm", b.horizontal, b.vertical),
             "positive, finite baselines",
@@ -124,21 +124,21 @@ fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
     let mut at: Vec<Option<usize>> = vec![None; rows * cols];
     for (entry, cam) in file.cameras.iter().enumerate() {
         let (Some(row), Some(col)) = (cam.row, cam.col) else {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 format!("camera {} with only one of row and col", entry + 1),
                 "row and col for every camera of a grid",
             ));
         };
         if row >= rows || col >= cols {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 format!("a camera at row {row} col {col}"),
                 format!("cameras inside the {rows} x {cols} grid"),
             ));
         }
         if at[row * cols + col].replace(entry).is_some() {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 format!("two cameras at row {row} col {col}"),
                 "one camera per grid position",
@@ -150,7 +150,7 @@ fn grid_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
         .map(|(i, entry)| {
             let (row, col) = (i / cols, i % cols);
             let entry = entry.ok_or_else(|| {
-                Error::mismatch(
+                Error::rig_layout(
                     rig,
                     format!("no camera at row {row} col {col}"),
                     "one camera per grid position",
@@ -176,14 +176,14 @@ pub fn grid_name(row: usize, col: usize) -> String {
 /// Free positions, in file order: finite, distinct, none far from every other.
 fn free_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
     if file.rows.is_some() || file.cols.is_some() || file.baseline_mm.is_some() {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             "rows, cols or baseline_mm with cameras given by position_mm",
             "the grid keys only for cameras given by row and col",
         ));
     }
     if file.cameras.len() > MAX_FREE_CAMERAS {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             format!("{} cameras", file.cameras.len()),
             format!("at most {MAX_FREE_CAMERAS}"),
@@ -202,7 +202,7 @@ fn free_placements(file: &RigFile, rig: &str) -> Result<Vec<Placement>> {
     for p in &placements {
         let [x, y] = p.position_mm;
         if !(x.abs() <= MAX_POSITION_MM && y.abs() <= MAX_POSITION_MM) {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 format!("{rig}: camera {}", p.name),
                 format!("position_mm = [{x}, {y}]"),
                 format!("finite coordinates within ±{MAX_POSITION_MM} mm"),
@@ -229,7 +229,7 @@ fn check_spacing(placements: &[Placement], rig: &str) -> Result<()> {
         {
             let d = distance(a.position_mm, b.position_mm);
             if d < SAME_POSITION_MM {
-                return Err(Error::mismatch(
+                return Err(Error::rig_layout(
                     rig,
                     format!(
                         "cameras {} and {} both at [{}, {}] mm",
@@ -241,7 +241,7 @@ fn check_spacing(placements: &[Placement], rig: &str) -> Result<()> {
             nearest = nearest.min(d);
         }
         if nearest > MAX_NEIGHBOUR_SPACING * shortest {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 format!("{rig}: camera {}", a.name),
                 format!(
                     "its nearest neighbour {nearest:.1} mm away, {:.1} times the array's \
@@ -269,21 +269,21 @@ fn check_names(placements: &[Placement], rig: &str) -> Result<()> {
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
         if !usable {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 format!("a camera named '{}'", p.name),
                 "names of 1 to 64 letters, digits, '_', '-' or '.', not starting with '.'",
             ));
         }
         if p.name.eq_ignore_ascii_case("all") {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 "a camera named 'all'",
                 "another name ('all' is what --views takes for every view)",
             ));
         }
         if placements[..i].iter().any(|q| q.name == p.name) {
-            return Err(Error::mismatch(
+            return Err(Error::rig_layout(
                 rig,
                 format!("two cameras named '{}'", p.name),
                 "a unique name per camera",
@@ -301,7 +301,7 @@ fn check_reference(file: &RigFile, placements: &[Placement], rig: &str) -> Resul
         .map(|p| p.name.as_str())
         .collect();
     if marked.len() > 1 {
-        return Err(Error::mismatch(
+        return Err(Error::rig_layout(
             rig,
             format!("{} reference cameras ({})", marked.len(), marked.join(", ")),
             "at most one camera with reference = true",

@@ -237,7 +237,7 @@ pub fn resolve_curve(reference: &str, base: &Path) -> Result<ResponseCurve> {
         .iter()
         .any(|p| reference.eq_ignore_ascii_case(&p[..p.len() - 1]));
     if bare || reference.trim().is_empty() {
-        return Err(Error::mismatch(
+        return Err(Error::curve(
             format!("curve '{reference}'"),
             "a keyword without its arguments, or nothing",
             "gaussian:CENTRE_NM:FWHM_NM[:PEAK], builtin:<name> or the path of a CSV file",
@@ -438,7 +438,7 @@ impl Rig {
                 None => rig_sensor.clone(),
             };
             if !(sensor.channel_count() == 1 || sensor.channel_count() == 3) {
-                return Err(Error::mismatch(
+                return Err(Error::curve(
                     format!("sensor '{}'", sensor.name()),
                     format!("{} channels", sensor.channel_count()),
                     "1 for monochrome or 3 for RGB",
@@ -446,7 +446,7 @@ impl Rig {
             }
             let filter = resolve_curve(&e.filter, &base_dir)?;
             if filter.channel_count() != 1 {
-                return Err(Error::mismatch(
+                return Err(Error::curve(
                     format!("filter '{}'", filter.name()),
                     format!("{} channels", filter.channel_count()),
                     "1 transmission column",
@@ -660,7 +660,7 @@ mod tests {
         outside.cameras[0].row = Some(7);
         let err = Rig::from_file(outside, ".".into()).unwrap_err();
         assert!(
-            matches!(&err, Error::Mismatch { found, .. } if found.contains("row 7")),
+            matches!(&err, Error::RigLayout { found, .. } if found.contains("row 7")),
             "{err}"
         );
         assert!(err.to_string().contains("inside the 2 x 4 grid"), "{err}");
@@ -696,7 +696,7 @@ mod tests {
         zero.baseline_mm.as_mut().unwrap().vertical = 0.0;
         assert_eq!(
             Rig::from_file(zero, ".".into()).err().map(|e| e.kind()),
-            Some("Mismatch")
+            Some("RigLayout")
         );
     }
 }

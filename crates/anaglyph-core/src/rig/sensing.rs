@@ -92,7 +92,7 @@ impl EffectiveResponses {
             hi = hi.min(b);
         }
         if cameras.is_empty() || !(hi > lo) {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 "rig",
                 "sensor curves without a common wavelength range",
                 "sensors whose curves overlap",

@@ -269,7 +269,7 @@ fn linear_colour(srgb: [f64; 3], ctx: &str) -> Result<[f64; 3]> {
     if srgb.iter().all(|v| (0.0..=1.0).contains(v)) {
         Ok(srgb.map(super::srgb_to_linear))
     } else {
-        Err(Error::mismatch(
+        Err(Error::scene(
             format!("{ctx}: srgb"),
             format!("{srgb:?}"),
             "values in [0, 1]",
@@ -314,7 +314,7 @@ impl Resolver<'_> {
 /// A measured spectrum "set/sample" on [`UPSAMPLING_SHAPE`].
 fn measured_spectrum(reference: &str, ctx: &str) -> Result<Vec<f64>> {
     let (set, sample) = reference.split_once('/').ok_or_else(|| {
-        Error::mismatch(
+        Error::scene(
             format!("{ctx}: reflectance"),
             format!("'{reference}'"),
             "'set/sample'",
@@ -334,7 +334,7 @@ fn material(spec: &MaterialSpec, resolver: &mut Resolver, ctx: &str) -> Result<M
     ];
     let count = kinds.iter().filter(|k| **k).count();
     if count > 1 || (count == 0 && spec.srgb.is_none()) {
-        return Err(Error::mismatch(
+        return Err(Error::scene(
             format!("{ctx}: material"),
             format!("{count} of texture, pattern and reflectance"),
             "exactly one of texture, pattern, reflectance, or an srgb colour",
@@ -401,7 +401,7 @@ fn resolve_object(
         spec.chart.is_some(),
     ];
     if shapes.iter().filter(|&&s| s).count() != 1 {
-        return Err(Error::mismatch(
+        return Err(Error::scene(
             ctx,
             format!("{} shapes", shapes.iter().filter(|&&s| s).count()),
             "exactly one of rectangle, sphere, box or chart",
@@ -410,7 +410,7 @@ fn resolve_object(
     let material = object_material(spec, resolver, ctx)?;
     let (shape, nearest_z) = object_shape(spec, ctx)?;
     if !(nearest_z >= MIN_DEPTH_MM) {
-        return Err(Error::mismatch(
+        return Err(Error::scene(
             ctx,
             format!("reaches z = {nearest_z:.1} mm"),
             format!(
@@ -425,8 +425,8 @@ fn resolve_object(
 fn object_material(spec: &ObjectSpec, resolver: &mut Resolver<'_>, ctx: &str) -> Result<Material> {
     match (&spec.material, &spec.chart) {
         (Some(m), None) => material(m, resolver, ctx),
-        (None, None) => Err(Error::mismatch(ctx, "no material", "a material")),
-        (Some(_), Some(_)) => Err(Error::mismatch(
+        (None, None) => Err(Error::scene(ctx, "no material", "a material")),
+        (Some(_), Some(_)) => Err(Error::scene(
             ctx,
             "a chart with a material",
             "no material: a chart has its own measured patches",
@@ -454,7 +454,7 @@ fn object_shape(spec: &ObjectSpec, ctx: &str) -> Result<(Shape, f64)> {
     if let Some(s) = &spec.rectangle {
         let size = s.size_mm.as_deref().unwrap_or_default();
         if size.len() != 2 {
-            return Err(Error::mismatch(
+            return Err(Error::scene(
                 format!("{ctx}: rectangle size_mm"),
                 format!("{size:?}"),
                 "[width, height]",
@@ -490,10 +490,10 @@ fn object_shape(spec: &ObjectSpec, ctx: &str) -> Result<(Shape, f64)> {
     let s = spec
         .cuboid
         .as_ref()
-        .ok_or_else(|| Error::mismatch(ctx, "no shape", "a shape"))?;
+        .ok_or_else(|| Error::scene(ctx, "no shape", "a shape"))?;
     let size = s.size_mm.as_deref().unwrap_or_default();
     if size.len() != 3 {
-        return Err(Error::mismatch(
+        return Err(Error::scene(
             format!("{ctx}: box size_mm"),
             format!("{size:?}"),
             "[width, height, depth]",
@@ -531,7 +531,7 @@ impl Scene {
     /// Resolves and validates a scene file; relative texture paths are taken from `base`.
     pub fn resolve(file: SceneFile, base: &Path) -> Result<Self> {
         if file.objects.is_empty() || file.objects.len() > MAX_OBJECTS {
-            return Err(Error::mismatch(
+            return Err(Error::scene(
                 format!("scene '{}'", file.name),
                 format!("{} objects", file.objects.len()),
                 format!("1 to {MAX_OBJECTS}"),

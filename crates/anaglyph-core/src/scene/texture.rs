@@ -3,6 +3,7 @@
 //! user's PNG/TIFF, decoded from sRGB to linear light, sampled bilinearly with wrap-around.
 
 use super::srgb_to_linear;
+use crate::image::Image;
 use crate::{Error, Result};
 use std::path::Path;
 
@@ -41,13 +42,10 @@ pub const TEXTURE_NAMES: [&str; 10] = [
     "text",
 ];
 
-/// A linear-light RGB image.
+/// A linear-light RGB image: three channels in [0, 1].
 #[derive(Debug, Clone)]
 pub struct Texture {
-    pub width: usize,
-    pub height: usize,
-    /// Row-major RGB triples in linear light, [0, 1].
-    pub rgb: Vec<[f32; 3]>,
+    pub image: Image<f32>,
 }
 
 impl Texture {
@@ -57,17 +55,18 @@ impl Texture {
         let table: Vec<f32> = (0..256)
             .map(|v| srgb_to_linear(v as f64 / 255.0) as f32)
             .collect();
-        let rgb = rgb8
+        let data = rgb8
             .pixels()
-            .map(|p| {
-                [
-                    table[p[0] as usize],
-                    table[p[1] as usize],
-                    table[p[2] as usize],
-                ]
-            })
+            .flat_map(|p| p.0.map(|v| table[v as usize]))
             .collect();
-        Texture { width, height, rgb }
+        Texture {
+            image: Image {
+                width,
+                height,
+                channels: 3,
+                data,
+            },
+        }
     }
 
     /// Decodes an sRGB PNG or TIFF file.
@@ -82,14 +81,15 @@ impl Texture {
     /// Bilinear sample at texture coordinates `(u, v)` (1 = one texture width/height),
     /// repeating outside [0, 1).
     pub fn sample(&self, u: f64, v: f64) -> [f64; 3] {
-        let x = u.rem_euclid(1.0) * self.width as f64 - 0.5;
-        let y = v.rem_euclid(1.0) * self.height as f64 - 0.5;
+        let (width, height) = (self.image.width, self.image.height);
+        let x = u.rem_euclid(1.0) * width as f64 - 0.5;
+        let y = v.rem_euclid(1.0) * height as f64 - 0.5;
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
         let wrap = |i: f64, n: usize| (i as i64).rem_euclid(n as i64) as usize;
-        let (xa, xb) = (wrap(x0, self.width), wrap(x0 + 1.0, self.width));
-        let (ya, yb) = (wrap(y0, self.height), wrap(y0 + 1.0, self.height));
-        let at = |x: usize, y: usize| self.rgb[y * self.width + x];
+        let (xa, xb) = (wrap(x0, width), wrap(x0 + 1.0, width));
+        let (ya, yb) = (wrap(y0, height), wrap(y0 + 1.0, height));
+        let at = |x: usize, y: usize| self.image.pixel(x, y);
         let (p00, p10, p01, p11) = (at(xa, ya), at(xb, ya), at(xa, yb), at(xb, yb));
         [0, 1, 2].map(|c| {
             let top = p00[c] as f64 * (1.0 - fx) + p10[c] as f64 * fx;
@@ -139,7 +139,7 @@ mod tests {
         ];
         for (name, (w, h)) in TEXTURE_NAMES.iter().zip(sizes) {
             let t = builtin_texture(name).unwrap();
-            assert_eq!((t.width, t.height), (w, h), "{name}");
+            assert_eq!((t.image.width, t.image.height), (w, h), "{name}");
         }
         assert!(builtin_texture("rocket")
             .unwrap_err()
@@ -150,9 +150,7 @@ mod tests {
     #[test]
     fn bilinear_sampling_interpolates_and_wraps() {
         let t = Texture {
-            width: 2,
-            height: 1,
-            rgb: vec![[0.0, 0.0, 0.0], [1.0, 0.5, 0.25]],
+            image: Image::new(2, 1, 3, vec![0.0, 0.0, 0.0, 1.0, 0.5, 0.25]).unwrap(),
         };
         // Texel centres at u = 0.25 and 0.75.
         assert_eq!(t.sample(0.25, 0.5), [0.0, 0.0, 0.0]);

@@ -35,7 +35,7 @@ impl DarkSignal {
         if fits {
             Ok(())
         } else {
-            Err(Error::mismatch(
+            Err(Error::setting(
                 "simulation dark signal",
                 format!("level {} with a pattern of {}", self.level, self.pattern),
                 format!(

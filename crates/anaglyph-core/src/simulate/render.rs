@@ -420,7 +420,7 @@ impl Simulation {
             || settings.width > MAX_SIDE
             || settings.height > MAX_SIDE
         {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "simulation size",
                 format!("{}x{}", settings.width, settings.height),
                 format!("1 to {MAX_SIDE} per side"),
@@ -460,7 +460,7 @@ impl Simulation {
             crate::memory::f32_bytes(pixels * (rig.cameras.len() * per_pixel) as u64),
         )?;
         if bands.start < UPSAMPLING_SHAPE.start || bands.end() > UPSAMPLING_SHAPE.end() {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "simulation",
                 format!("reconstruction bands {bands} leave the scene spectra"),
                 format!(
@@ -478,7 +478,7 @@ impl Simulation {
         let responses = EffectiveResponses::of_rig(&lit)?;
         let (lo, hi) = (responses.grid.start, responses.grid.end());
         if lo < UPSAMPLING_SHAPE.start - 1e-9 || hi > UPSAMPLING_SHAPE.end() + 1e-9 {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "simulation",
                 format!("sensor support {lo}–{hi} nm"),
                 format!(
@@ -497,7 +497,7 @@ impl Simulation {
         let render_c = SensingMatrix::from_responses(&responses, knots, OutOfBand::Extend)?;
         let render_c = embed_in_upsampling_grid(render_c)?;
         if !(0.0..=MAX_VIGNETTING).contains(&settings.vignetting) {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 "simulation vignetting",
                 format!("{}", settings.vignetting),
                 format!("a fraction of the light lost at the corners, 0 to {MAX_VIGNETTING}"),
@@ -508,7 +508,7 @@ impl Simulation {
         }
         if let Some(m) = settings.metamers {
             if !(m.amplitude >= 0.0 && m.amplitude.is_finite() && m.scale_mm > 0.0) {
-                return Err(Error::mismatch(
+                return Err(Error::setting(
                     "simulation metameric variation",
                     format!("amplitude {} and scale {} mm", m.amplitude, m.scale_mm),
                     "an amplitude >= 0 and a scale > 0",

@@ -62,14 +62,14 @@ impl ResponseCurve {
     fn validate(&self) -> Result<()> {
         let ctx = || format!("curve '{}'", self.name);
         if self.wavelengths.len() < 2 {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 ctx(),
                 format!("{} samples", self.wavelengths.len()),
                 "at least 2",
             ));
         }
         if self.channel_names.is_empty() || self.channel_names.len() != self.values.len() {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 ctx(),
                 format!(
                     "{} channel names for {} value columns",
@@ -81,7 +81,7 @@ impl ResponseCurve {
         }
         for w in self.wavelengths.windows(2) {
             if !(w[1] > w[0]) {
-                return Err(Error::mismatch(
+                return Err(Error::curve(
                     ctx(),
                     format!("wavelengths {} then {} nm", w[0], w[1]),
                     "strictly increasing wavelengths",
@@ -354,7 +354,7 @@ impl ResponseCurve {
     /// Exact integral of channel `c`'s piecewise-linear interpolant over `[lo, hi]` nm.
     pub fn integrate(&self, c: usize, lo: f64, hi: f64) -> Result<f64> {
         if !(lo <= hi) {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 format!("curve '{}': integration band", self.name),
                 format!("{lo} to {hi} nm"),
                 "a band whose start is at most its end",
@@ -434,7 +434,7 @@ mod tests {
         ));
         assert!(matches!(
             variant("wavelength_nm,a\n410,1\n400,2\n"),
-            Error::Mismatch { .. }
+            Error::Curve { .. }
         ));
     }
 

@@ -35,7 +35,7 @@ impl SpectralShape {
     /// must be a whole number of steps (within 1e-6 nm).
     pub fn from_range(start: f64, end: f64, step: f64) -> Result<Self> {
         if !(step.is_finite() && step > 0.0 && start.is_finite() && end.is_finite()) {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 "spectral shape",
                 format!("start {start}, end {end}, step {step}"),
                 "finite values and a step > 0",
@@ -44,7 +44,7 @@ impl SpectralShape {
         let steps = (end - start) / step;
         let whole = steps.round();
         if steps < -1e-9 || (steps - whole).abs() > 1e-6 {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 "spectral shape",
                 format!("{start} to {end} nm in {step} nm steps"),
                 "a whole number of steps",
@@ -56,7 +56,7 @@ impl SpectralShape {
     /// Checks finiteness, a positive step and a sane count.
     pub fn validate(&self) -> Result<()> {
         if !self.start.is_finite() || !self.step.is_finite() || self.step <= 0.0 {
-            return Err(Error::mismatch(
+            return Err(Error::curve(
                 "spectral shape",
                 format!("start {} step {}", self.start, self.step),
                 "finite values and a step > 0",
@@ -140,17 +140,17 @@ mod tests {
             SpectralShape::from_range(400.0, 701.0, 5.0)
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Curve")
         );
         assert_eq!(
             SpectralShape::new(400.0, 0.0, 3).err().map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Curve")
         );
         assert_eq!(
             SpectralShape::new(400.0, f64::NAN, 3)
                 .err()
                 .map(|e| e.kind()),
-            Some("Mismatch")
+            Some("Curve")
         );
         assert_eq!(
             SpectralShape::new(400.0, 1.0, 0).err().map(|e| e.kind()),

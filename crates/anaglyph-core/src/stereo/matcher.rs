@@ -248,7 +248,7 @@ fn validate(left: &GreyImage, right: &GreyImage, range: DisparityRange) -> Resul
         }
     }
     if left.width < 2 || left.height < 1 {
-        return Err(Error::mismatch(
+        return Err(Error::raster(
             "stereo matching: image size",
             format!("{}×{}", left.width, left.height),
             "at least 2×1",

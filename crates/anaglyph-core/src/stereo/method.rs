@@ -68,7 +68,7 @@ impl MatchMethod {
             (_, None) => return Ok(None),
         };
         if (self == MatchMethod::MccnnAccurate) != network.is_accurate() {
-            return Err(Error::mismatch(
+            return Err(Error::setting(
                 format!("model for method {self}"),
                 format!(
                     "the {} network",
@@ -127,14 +127,14 @@ impl GreyChannel {
     pub fn of(self, image: &Image<f32>, what: &str) -> Result<GreyImage> {
         let c = image.channels;
         if !matches!(c, 1 | 3) {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 what,
                 format!("{c} channels"),
                 "1 (grey) or 3 (RGB)",
             ));
         }
         if c == 1 && self != GreyChannel::Luminance {
-            return Err(Error::mismatch(
+            return Err(Error::raster(
                 format!("{what} with channel {self}"),
                 "a grey image",
                 "an RGB image (or channel luminance)",

@@ -18,20 +18,7 @@ use rayon::prelude::*;
 use std::ops::Range;
 
 /// Per-pixel feature vectors, `data[(y·width + x)·channels + k]`.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct FeatureMap {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
-    pub data: Vec<f32>,
-}
-
-impl FeatureMap {
-    pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
-        let i = (y * self.width + x) * self.channels;
-        &self.data[i..i + self.channels]
-    }
-}
+pub type FeatureMap = crate::image::Image<f32>;
 
 /// The image shifted to zero mean and scaled to unit standard deviation (MC-CNN's input
 /// normalisation); a constant image becomes all zeros.

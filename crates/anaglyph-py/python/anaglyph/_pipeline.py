@@ -154,12 +154,15 @@ class View:
     """One reconstructed view: ``cube`` float32 ``(H, W, bands)`` (reflectance, NaN where
     nothing was measured; None with ``output="registered"``), ``disparity`` float32
     ``(H, W)`` per column step of the array (NaN: unknown), ``registered`` float32
-    ``(H, W, channels)`` with ``output="registered"`` or ``"both"`` (NaN: unseen)."""
+    ``(H, W, channels)`` with ``output="registered"`` or ``"both"`` (NaN: unseen),
+    ``cameras_seeing`` uint8 ``(H, W)``: how many cameras (the view's own included)
+    measured each pixel, and ``visibility``, the view's summary of it."""
 
     name: str
     disparity: np.ndarray
     cube: np.ndarray | None = None
     registered: np.ndarray | None = None
+    cameras_seeing: np.ndarray | None = None
     visibility: dict[str, Any] = field(default_factory=dict)
     neighbour_agreement: float | None = None
 
@@ -196,6 +199,12 @@ class Reconstruction:
         data: dict[str, Any] = {
             "disparity": (("view", "y", "x"), np.stack([v.disparity for v in self])),
         }
+        if all(v.cameras_seeing is not None for v in self):
+            data["visibility"] = (
+                ("view", "y", "x"),
+                np.stack([v.cameras_seeing for v in self]),
+                {"long_name": "number of cameras that measured the pixel"},
+            )
         if all(v.cube is not None for v in self):
             data["reflectance"] = (
                 ("view", "y", "x", "wavelength"),

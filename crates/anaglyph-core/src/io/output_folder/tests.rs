@@ -183,11 +183,11 @@ fn verification_refuses_partial_mixed_and_changed_folders() {
     finish(folder, &[("views/r0c0.img", "cube0")]);
     std::fs::write(target.join("views/r0c1.img"), "stale").unwrap();
     let mixed = verify_output_folder(&target);
-    assert_eq!(mixed.err().map(|e| e.kind()), Some("Mismatch"));
+    assert_eq!(mixed.err().map(|e| e.kind()), Some("OutputConflict"));
     std::fs::remove_file(target.join("views/r0c1.img")).unwrap();
     std::fs::write(target.join("views/r0c0.img"), "cube9").unwrap();
     let changed = verify_output_folder(&target);
-    assert_eq!(changed.err().map(|e| e.kind()), Some("Mismatch"));
+    assert_eq!(changed.err().map(|e| e.kind()), Some("OutputConflict"));
     std::fs::remove_file(target.join("views/r0c0.img")).unwrap();
     let partial = verify_output_folder(&target);
     assert_eq!(partial.err().map(|e| e.kind()), Some("MissingFile"));
@@ -208,7 +208,7 @@ fn a_subfolder_verifies_while_the_rest_was_edited() {
     std::fs::write(target.join("rig.toml"), "rows = 2 # edited").unwrap();
     assert_eq!(
         verify_output_folder(&target).err().map(|e| e.kind()),
-        Some("Mismatch")
+        Some("OutputConflict")
     );
     verify_output_subfolder(&target, "truth").unwrap();
     std::fs::write(target.join("truth/r0c1.pfm"), "stale").unwrap();
@@ -216,6 +216,6 @@ fn a_subfolder_verifies_while_the_rest_was_edited() {
         verify_output_subfolder(&target, "truth")
             .err()
             .map(|e| e.kind()),
-        Some("Mismatch")
+        Some("OutputConflict")
     );
 }

@@ -50,6 +50,7 @@ use super::{
     smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, RegionPlane,
     Registration, RegistrationSettings, ViewImage, SUBPIXEL_WINDOW_RADIUS,
 };
+use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::stereo::{
     median_filter, semi_global_matching, tower_features, unit_range, winner_take_all,
     DisparityRange, FeatureMap, GreyImage, MatchSettings, MatchingCost, MatchingNetwork,
@@ -82,7 +83,12 @@ pub fn multi_baseline_disparities(
         "cross-check, fill, median, planes".to_string(),
         clock.elapsed().as_secs_f64(),
     ));
-    let (disparities, moved) = planes.into_iter().unzip();
+    let (w, h) = costs.size();
+    let (maps, moved): (Vec<Vec<f32>>, Vec<usize>) = planes.into_iter().unzip();
+    let disparities = maps
+        .into_iter()
+        .map(|map| DisparityMap::new(w, h, DisparityConvention::ColumnStep, map))
+        .collect::<Result<_>>()?;
     Ok(Registration {
         disparities,
         timings,
@@ -95,7 +101,7 @@ pub fn multi_baseline_disparities(
 fn fast_network<'a>(settings: &RegistrationSettings<'a>) -> Result<&'a MatchingNetwork> {
     match settings.cost {
         MatchingCost::Learned(network) if !network.is_accurate() => Ok(network),
-        other => Err(Error::mismatch(
+        other => Err(Error::setting(
             "multi-baseline registration",
             format!(
                 "the {} cost (use pairwise registration for it)",
@@ -108,7 +114,7 @@ fn fast_network<'a>(settings: &RegistrationSettings<'a>) -> Result<&'a MatchingN
 
 /// Every view's raw subpixel map and the ambiguity of its costs.
 struct MatchedViews {
-    raw: Vec<Vec<f32>>,
+    raw: Vec<DisparityMap>,
     ambiguities: Vec<Ambiguity>,
 }
 
@@ -150,12 +156,12 @@ fn match_views(
             None => winner_take_all(&volume),
         };
         let half = costs.half_steps(i, &disparity);
-        matched.raw.push(half_step_subpixel(
-            &volume,
-            &half,
-            &disparity,
-            SUBPIXEL_WINDOW_RADIUS,
-        ));
+        matched.raw.push(DisparityMap {
+            width: w,
+            height: h,
+            convention: DisparityConvention::ColumnStep,
+            data: half_step_subpixel(&volume, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
+        });
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
     }
@@ -167,9 +173,9 @@ fn match_views(
 /// View `i`'s raw map checked against its neighbours', the failures filled
 /// by cost from their nearest valid neighbours, then a 5×5 median and smoothing within
 /// surfaces.
-fn checked_filled_smoothed(raw: &[Vec<f32>], costs: &PointCosts<'_>, i: usize) -> Vec<f32> {
+fn checked_filled_smoothed(raw: &[DisparityMap], costs: &PointCosts<'_>, i: usize) -> Vec<f32> {
     let (w, h) = costs.size();
-    let mut checked = confirmed_by_neighbours(raw, costs.geometry, i, w, h);
+    let mut checked = confirmed_by_neighbours(raw, costs.geometry, i).data;
     fill_by_cost(&mut checked, w, h, &costs.at(i));
     smooth_within_surfaces(&median_filter(&checked, w, h, 2), w, h)
 }
