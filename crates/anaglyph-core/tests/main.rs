@@ -8,3 +8,4 @@ mod rectification;
 mod simulator;
 mod spectral_core;
 mod stereo;
+mod zarr_store;

@@ -9,7 +9,7 @@ use anaglyph_core::choice::Choice;
 use anaglyph_core::demux::Solver;
 use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
-use anaglyph_core::io::read_linear_image;
+use anaglyph_core::io::{read_linear_image, LightFieldStore};
 use anaglyph_core::reconstruct::{
     reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, DisparitySearch, Preset,
     Products, ReconstructOptions, SolveTuning, Stage,
@@ -207,7 +207,8 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
                     preset="default", output="cube", disp_range=None, method="mccnn",
                     model=None, registration="multi-baseline", solver="exact",
                     matching_image=None, warp_kernel=None, white_reflectance=None,
-                    saturation=None, tuning=None, progress=None))]
+                    saturation=None, tuning=None, progress=None, store=None, frame=0,
+                    frames=None, overwrite=false, arrays=true, skip_done=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -230,6 +231,12 @@ pub fn reconstruct<'py>(
     saturation: Option<f32>,
     tuning: Option<&str>,
     progress: Option<Py<PyAny>>,
+    store: Option<PathBuf>,
+    frame: i64,
+    frames: Option<Vec<i64>>,
+    overwrite: bool,
+    arrays: bool,
+    skip_done: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let rig = &rig.inner;
@@ -284,22 +291,49 @@ pub fn reconstruct<'py>(
         let network = options.network()?;
         let mut settings = options.settings(network.as_ref())?;
         settings.cancel = Some(&cancel);
+        // The store is made (or its run checked) before any work.
+        let store = match &store {
+            Some(path) => {
+                let frames = frames.clone().unwrap_or_else(|| vec![frame]);
+                let size = (captures.width, captures.height);
+                let layout = options.store_layout(&settings, rig, frames, size)?;
+                let store = LightFieldStore::create(path, layout, overwrite)?;
+                let index = store.frame_index(frame)?;
+                if skip_done && store.frames_done()?[index] {
+                    return Ok(None);
+                }
+                Some(store)
+            }
+            None => None,
+        };
         let field = core_reconstruct(rig, &captures, &settings, &report)?;
+        let writing = std::time::Instant::now();
+        if let Some(store) = &store {
+            store.write_frame(frame, &field)?;
+        }
+        let writing_seconds = writing.elapsed().as_secs_f64();
         let mut parameters = options.record(&settings, rig);
         if let Some(record) = parameters.as_object_mut() {
             record.insert("interface".into(), "python".into());
         }
-        let manifest = field.manifest(parameters, loading_seconds)?;
-        Ok((field, manifest))
+        let mut manifest = field.manifest(parameters, loading_seconds)?;
+        if store.is_some() {
+            manifest["store_seconds"] = writing_seconds.into();
+        }
+        Ok(Some((field, manifest)))
     });
     if let Some(e) = callback_error.lock().ok().and_then(|mut slot| slot.take()) {
         return Err(e);
     }
-    let (field, manifest) = outcome?;
     let out = PyDict::new(py);
+    let Some((field, manifest)) = outcome? else {
+        out.set_item("skipped", true)?;
+        return Ok(out);
+    };
+    out.set_item("skipped", false)?;
     let (w, h, bands) = (field.width, field.height, field.bands.len());
     let views = PyDict::new(py);
-    for view in field.views {
+    for view in field.views.into_iter().filter(|_| arrays) {
         let v = PyDict::new(py);
         if options.output.cubes() {
             v.set_item("cube", cube_array(py, view.reflectance)?)?;

@@ -1,5 +1,6 @@
 //! File formats at the edges of the pipeline: ENVI spectral cubes (.hdr + raw), NumPy
-//! `.npy` arrays, PFM disparity maps, 8/16-bit PNG/TIFF captures. Every writer goes
+//! `.npy` arrays, PFM disparity maps, 8/16-bit PNG/TIFF captures, Zarr v3 stores of frame
+//! sequences. Every writer goes
 //! through [`write_atomically`] (temporary file in the target folder, then rename), so a
 //! failed run never leaves a half-written output; every reader checks sizes against
 //! limits before it allocates.
@@ -13,6 +14,7 @@ mod npy;
 mod output_folder;
 mod pfm;
 mod tiff_directory;
+mod zarr_store;
 
 pub use atomic::write_atomically;
 pub use disparity_preview::{ramp_colour, write_disparity_preview};
@@ -33,6 +35,7 @@ pub use output_folder::{
     VerifiedFolder, MANIFEST,
 };
 pub use pfm::{read_pfm, write_pfm, PfmImage};
+pub use zarr_store::{LightFieldStore, StoreLayout};
 
 /// Largest raster (pixels × channels) any reader allocates: 2^31 values (8 GiB of f32).
 pub const MAX_RASTER_VALUES: u64 = 1 << 31;

@@ -9,6 +9,7 @@ use super::settings::{
 };
 use super::Products;
 use crate::demux::Solver;
+use crate::io::StoreLayout;
 use crate::refine::GuidedRefinement;
 use crate::register::{MatchingImage, RegistrationMode, WarpKernel, DEFAULT_REGISTRATION};
 use crate::rig::Rig;
@@ -188,6 +189,44 @@ impl ReconstructOptions {
 }
 
 impl ReconstructOptions {
+    /// The layout of a Zarr store of this run's `frames` at `width × height`: the views
+    /// asked for (in the rig's order), the rig's bands and channels as the products need
+    /// them, and as the run the rig and the recorded settings (a reopened store must match).
+    pub fn store_layout(
+        &self,
+        settings: &PipelineSettings<'_>,
+        rig: &Rig,
+        frames: Vec<i64>,
+        (width, height): (usize, usize),
+    ) -> Result<StoreLayout> {
+        let views = rig
+            .cameras
+            .iter()
+            .map(|c| c.name.clone())
+            .filter(|name| self.views.as_ref().is_none_or(|v| v.contains(name)))
+            .collect();
+        let wavelengths = match self.output.cubes() {
+            true => rig.reconstruction_shape()?.wavelengths(),
+            false => Vec::new(),
+        };
+        let channels = match self.output.registered() {
+            true => crate::rig::SensingMatrix::of_rig(rig)?.row_labels,
+            false => Vec::new(),
+        };
+        Ok(StoreLayout {
+            frames,
+            views,
+            width,
+            height,
+            wavelengths,
+            channels,
+            run: serde_json::json!({
+                "rig": rig.file.to_toml_string()?,
+                "parameters": self.record(settings, rig),
+            }),
+        })
+    }
+
     /// The options and what they resolved to in `settings`, as a run's manifest records
     /// them (`parameters`; the front end adds its inputs).
     pub fn record(&self, settings: &PipelineSettings<'_>, rig: &Rig) -> serde_json::Value {

@@ -32,6 +32,7 @@ from ._core import (
     write_envi,
     write_pfm,
 )
+from ._frames import FrameReport, SequenceRun, reconstruct_frames
 from ._pipeline import Reconstruction, Simulation, View, calibrate, match, reconstruct, simulate
 
 # One exception class per cause of the core (made from its list of causes at import).
@@ -43,8 +44,10 @@ CHOICES: dict[str, list[str]] = _core.choices()
 
 __all__ = [
     "CHOICES",
+    "FrameReport",
     "Reconstruction",
     "Rig",
+    "SequenceRun",
     "Simulation",
     "View",
     "__version__",
@@ -56,6 +59,7 @@ __all__ = [
     "read_image",
     "read_pfm",
     "reconstruct",
+    "reconstruct_frames",
     "select_filters",
     "set_num_threads",
     "simulate",

@@ -188,6 +188,12 @@ def reconstruct(
     saturation: float | None = None,
     tuning: str | None = None,
     progress: Callable[[str, int, int], object] | None = None,
+    store: _Path | None = None,
+    frame: int = 0,
+    frames: list[int] | None = None,
+    overwrite: bool = False,
+    arrays: bool = True,
+    skip_done: bool = False,
 ) -> dict[str, Any]: ...
 def read_envi(path: _Path) -> tuple[npt.NDArray[np.float32], list[float] | None, list[str] | None]: ...
 def write_envi(

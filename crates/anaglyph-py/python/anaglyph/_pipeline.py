@@ -242,6 +242,57 @@ def _progress(progress: bool | Progress | None) -> tuple[Any, Progress | None]:
     return bar, update
 
 
+
+def _captures(captures: Any, what: str = "captures") -> dict[str, Any]:
+    if not isinstance(captures, Mapping):
+        raise TypeError(f"{what}: expected a dict of camera name -> image, got {type(captures).__name__}")
+    return dict(captures)
+
+
+def _core_options(
+    whites: Mapping[str, np.ndarray] | None,
+    darks: Mapping[str, np.ndarray] | None,
+    calibration: Mapping[str, Any] | PathLike | None,
+    views: Sequence[str] | None,
+    preset: str,
+    output: str,
+    disp_range: str | tuple[int, int] | int,
+    method: str,
+    model: PathLike | None,
+    registration: str,
+    solver: str,
+    matching_image: str | None,
+    warp_kernel: str | None,
+    white_reflectance: float | None,
+    saturation: float | None,
+    tuning: Mapping[str, Any] | None,
+) -> dict[str, Any]:
+    """The keyword arguments of ``_core.reconstruct`` for the wrapper's options."""
+    search: Any = disp_range
+    if not (isinstance(disp_range, str) and disp_range == "auto"):
+        search = _disparity_range(disp_range)
+    if calibration is not None and not isinstance(calibration, Mapping):
+        calibration = os.fspath(calibration)
+    return dict(
+        whites=_captures(whites, "whites") if whites is not None else None,
+        darks=_captures(darks, "darks") if darks is not None else None,
+        calibration=dict(calibration) if isinstance(calibration, Mapping) else calibration,
+        views=list(views) if views is not None else None,
+        preset=preset,
+        output=output,
+        disp_range=search,
+        method=method,
+        model=os.fspath(model) if model is not None else None,
+        registration=registration,
+        solver=solver,
+        matching_image=matching_image,
+        warp_kernel=warp_kernel,
+        white_reflectance=white_reflectance,
+        saturation=saturation,
+        tuning=json.dumps(dict(tuning)) if tuning is not None else None,
+    )
+
+
 def reconstruct(
     rig: Rig | str,
     captures: Mapping[str, np.ndarray],
@@ -283,36 +334,27 @@ def reconstruct(
     (120, 160, 24)
     """
     rig = _rig(rig)
-    if not isinstance(captures, Mapping):
-        raise TypeError(f"captures: expected a dict of camera name -> image, got {type(captures).__name__}")
-    search: Any = disp_range
-    if not (isinstance(disp_range, str) and disp_range == "auto"):
-        search = _disparity_range(disp_range)
-    if calibration is not None and not isinstance(calibration, Mapping):
-        calibration = os.fspath(calibration)
+    options = _core_options(
+        whites=whites,
+        darks=darks,
+        calibration=calibration,
+        views=views,
+        preset=preset,
+        output=output,
+        disp_range=disp_range,
+        method=method,
+        model=model,
+        registration=registration,
+        solver=solver,
+        matching_image=matching_image,
+        warp_kernel=warp_kernel,
+        white_reflectance=white_reflectance,
+        saturation=saturation,
+        tuning=tuning,
+    )
     bar, callback = _progress(progress)
     try:
-        out = _core.reconstruct(
-            rig,
-            dict(captures),
-            whites=dict(whites) if whites is not None else None,
-            darks=dict(darks) if darks is not None else None,
-            calibration=dict(calibration) if isinstance(calibration, Mapping) else calibration,
-            views=list(views) if views is not None else None,
-            preset=preset,
-            output=output,
-            disp_range=search,
-            method=method,
-            model=os.fspath(model) if model is not None else None,
-            registration=registration,
-            solver=solver,
-            matching_image=matching_image,
-            warp_kernel=warp_kernel,
-            white_reflectance=white_reflectance,
-            saturation=saturation,
-            tuning=json.dumps(dict(tuning)) if tuning is not None else None,
-            progress=callback,
-        )
+        out = _core.reconstruct(rig, _captures(captures), progress=callback, **options)
     finally:
         if bar is not None:
             bar.close()

@@ -1,0 +1,226 @@
+"""Frame sequences: every frame of a clip through the same pipeline, into memory or a
+Zarr v3 store that xarray, Dask and napari open directly."""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from ._core import Rig
+from ._pipeline import (
+    PathLike,
+    Progress,
+    Reconstruction,
+    View,
+    _captures,
+    _core_options,
+    _rig,
+)
+
+logger = logging.getLogger("anaglyph")
+
+
+@dataclass
+class FrameReport:
+    """What one frame's run did: its ``frame`` number, the ``seconds`` it took (the whole
+    call), ``store_seconds`` spent writing it, whether it was ``skipped`` (already in the
+    store) and its ``warnings``."""
+
+    frame: int
+    seconds: float
+    store_seconds: float = 0.0
+    skipped: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class SequenceRun:
+    """A sequence written to a Zarr ``store``: one :class:`FrameReport` per frame, in order.
+    ``xarray.open_zarr(run.store)`` opens the result."""
+
+    store: Path
+    frames: list[FrameReport]
+
+
+def _numbered(frames: Any) -> list[tuple[int, Any]]:
+    """``frames`` as (frame number, captures) pairs: a mapping keeps its numbers, a
+    sequence is numbered from 0."""
+    if isinstance(frames, (str, os.PathLike)):
+        raise TypeError("frames: a folder of frames is read with anaglyph.read_frames(folder)")
+    if isinstance(frames, Mapping):
+        items = list(frames.items())
+    elif isinstance(frames, Sequence):
+        items = list(enumerate(frames))
+    else:
+        raise TypeError(
+            "frames: expected a dict of frame number -> captures or a list of captures dicts, "
+            f"got {type(frames).__name__}"
+        )
+    if not items:
+        raise ValueError("frames: no frames (expected at least one)")
+    numbered: list[tuple[int, Any]] = []
+    for number, captures in items:
+        if isinstance(number, bool) or not isinstance(number, (int, np.integer)):
+            raise TypeError(f"frames: frame numbers must be integers, got {number!r}")
+        numbered.append((int(number), captures))
+    numbers = [n for n, _ in numbered]
+    if len(set(numbers)) != len(numbers):
+        raise ValueError(f"frames: frame numbers given twice in {numbers}")
+    return numbered
+
+
+def _check_frames(rig: Rig, numbered: list[tuple[int, Any]]) -> None:
+    """Every frame has the first frame's cameras, shapes and dtypes (checked before any
+    work; the core checks the first frame against the rig)."""
+    first_number, first = numbered[0]
+    reference = _captures(first, f"frame {first_number}")
+    shapes = {name: (np.shape(a), getattr(a, "dtype", None)) for name, a in reference.items()}
+    for number, captures in numbered[1:]:
+        captures = _captures(captures, f"frame {number}")
+        missing = sorted(set(shapes) - set(captures))
+        extra = sorted(set(captures) - set(shapes))
+        if missing or extra:
+            raise _core.CapturesError(
+                f"frame {number}: cameras {missing or extra} "
+                f"({'missing' if missing else 'not in'} frame {first_number}'s)"
+                f" (expected the cameras of frame {first_number}: {sorted(shapes)})"
+            )
+        for name, image in captures.items():
+            found = (np.shape(image), getattr(image, "dtype", None))
+            if found != shapes[name]:
+                raise _core.RasterError(
+                    f"frame {number}: camera {name}: shape {found[0]} of {found[1]} "
+                    f"(expected frame {first_number}'s {shapes[name][0]} of {shapes[name][1]})"
+                )
+
+
+def reconstruct_frames(
+    rig: Rig | str,
+    frames: Mapping[int, Mapping[str, np.ndarray]] | Sequence[Mapping[str, np.ndarray]],
+    store: PathLike | None = None,
+    overwrite: bool = False,
+    whites: Mapping[str, np.ndarray] | None = None,
+    darks: Mapping[str, np.ndarray] | None = None,
+    calibration: Mapping[str, Any] | PathLike | None = None,
+    views: Sequence[str] | None = None,
+    preset: str = "default",
+    output: str = "cube",
+    disp_range: str | tuple[int, int] | int = "auto",
+    method: str = "mccnn",
+    model: PathLike | None = None,
+    registration: str = "multi-baseline",
+    solver: str = "exact",
+    matching_image: str | None = None,
+    warp_kernel: str | None = None,
+    white_reflectance: float | None = None,
+    saturation: float | None = None,
+    tuning: Mapping[str, Any] | None = None,
+    progress: bool | Progress = True,
+) -> SequenceRun | dict[int, Reconstruction]:
+    """Reconstructs every frame of a sequence, in frame order, with :func:`reconstruct`'s
+    options (the white boards, dark frames and calibration hold for the whole sequence).
+
+    ``frames``: a dict of frame number -> captures (one image per camera, as
+    :func:`reconstruct` takes), or a list of captures numbered from 0. Every frame must
+    have the first frame's cameras, shapes and dtypes (checked before any work).
+
+    With ``store`` (a path ending in ``.zarr``), each frame is written to that Zarr v3
+    store as it finishes and the call returns a :class:`SequenceRun` (per-frame timings),
+    holding no frame in memory: ``reflectance`` ``(frame, view, y, x, wavelength)``,
+    ``disparity`` and ``visibility`` ``(frame, view, y, x)``, ``registered`` ``(frame,
+    view, y, x, channel)`` with ``output="registered"`` or ``"both"``, and the coordinates
+    ``frame``, ``view``, ``wavelength`` (nm), ``channel``. A store of the same run is
+    completed (frames already written are skipped); a store of another run is refused
+    unless ``overwrite``; a folder that is not an anaglyph store is never replaced.
+    Without ``store``: a dict of frame number -> :class:`Reconstruction`.
+
+    >>> run = anaglyph.reconstruct_frames(rig, {0: cap0, 1: cap1}, store="clip.zarr")  # doctest: +SKIP
+    >>> xarray.open_zarr("clip.zarr")["reflectance"].dims                              # doctest: +SKIP
+    ('frame', 'view', 'y', 'x', 'wavelength')
+    """
+    rig = _rig(rig)
+    numbered = _numbered(frames)
+    _check_frames(rig, numbered)
+    options = _core_options(
+        whites=whites,
+        darks=darks,
+        calibration=calibration,
+        views=views,
+        preset=preset,
+        output=output,
+        disp_range=disp_range,
+        method=method,
+        model=model,
+        registration=registration,
+        solver=solver,
+        matching_image=matching_image,
+        warp_kernel=warp_kernel,
+        white_reflectance=white_reflectance,
+        saturation=saturation,
+        tuning=tuning,
+    )
+    numbers = [n for n, _ in numbered]
+    bar = None
+    callback = progress if callable(progress) else None
+    if progress is True:
+        from tqdm.auto import tqdm  # type: ignore[import-untyped]
+
+        bar = tqdm(total=len(numbered), desc="anaglyph", unit="frame")
+    reports: list[FrameReport] = []
+    results: dict[int, Reconstruction] = {}
+    try:
+        for number, captures in numbered:
+            started = time.perf_counter()
+            if bar is not None:
+                bar.set_postfix_str(f"frame {number}", refresh=True)
+            out = _core.reconstruct(
+                rig,
+                _captures(captures, f"frame {number}"),
+                progress=callback,
+                store=os.fspath(store) if store is not None else None,
+                frame=number,
+                frames=numbers,
+                overwrite=overwrite and not reports,
+                arrays=store is None,
+                skip_done=store is not None,
+                **options,
+            )
+            seconds = time.perf_counter() - started
+            if out["skipped"]:
+                reports.append(FrameReport(frame=number, seconds=seconds, skipped=True))
+            else:
+                for warning in out["warnings"]:
+                    logger.warning("frame %d: %s", number, warning)
+                reports.append(
+                    FrameReport(
+                        frame=number,
+                        seconds=seconds,
+                        store_seconds=float(out["manifest"].get("store_seconds", 0.0)),
+                        warnings=list(out["warnings"]),
+                    )
+                )
+                if store is None:
+                    results[number] = Reconstruction(
+                        views={name: View(name=name, **view) for name, view in out["views"].items()},
+                        wavelengths=out["wavelengths"],
+                        channel_labels=out["channel_labels"],
+                        manifest=out["manifest"],
+                        warnings=out["warnings"],
+                    )
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    if store is None:
+        return results
+    return SequenceRun(store=Path(store), frames=reports)
+

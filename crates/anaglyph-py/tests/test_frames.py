@@ -1,0 +1,103 @@
+"""Frame sequences into a Zarr v3 store: read back with zarr-python and xarray, equal to
+single-frame runs, resumed by a rerun, and bad sequences refused before any work."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import anaglyph
+
+from conftest import small_rig
+
+SIZE = (96, 72)
+
+
+@pytest.fixture(scope="module")
+def clip():
+    """Three frames of the tabletop (different noise) through the paper's rig."""
+    rig = small_rig("paper-2x4", SIZE[0])
+    sims = [anaglyph.simulate("tabletop", rig=rig, size=SIZE, seed=s) for s in range(3)]
+    frames = {10 + s: sim.captures for s, sim in enumerate(sims)}
+    return rig, frames, sims[0].whites
+
+
+def bits(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a).tobytes()
+
+
+def test_a_sequence_goes_to_a_zarr_store_that_xarray_opens(clip, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    xr = pytest.importorskip("xarray")
+    rig, frames, whites = clip
+    store = tmp_path / "clip.zarr"
+    run = anaglyph.reconstruct_frames(rig, frames, store=store, whites=whites, output="both", progress=False)
+    assert [r.frame for r in run.frames] == [10, 11, 12]
+    assert not any(r.skipped for r in run.frames)
+    assert all(0 < r.store_seconds < r.seconds for r in run.frames)
+
+    ds = xr.open_zarr(store)
+    assert ds["reflectance"].dims == ("frame", "view", "y", "x", "wavelength")
+    assert ds["registered"].dims == ("frame", "view", "y", "x", "channel")
+    assert ds["disparity"].dims == ds["visibility"].dims == ("frame", "view", "y", "x")
+    assert ds["frame"].values.tolist() == [10, 11, 12]
+    assert ds["view"].values.tolist() == [c["name"] for c in rig.cameras]
+    assert ds["channel"].values.tolist() == rig.channel_labels()
+    np.testing.assert_array_equal(ds["wavelength"].values, rig.wavelengths)
+    assert ds["wavelength"].attrs["units"] == "nm"
+    assert ds["visibility"].dtype == np.uint8
+    # Values are a single-frame run's, bit for bit.
+    one = anaglyph.reconstruct(rig, frames[11], whites=whites, output="both", progress=False)
+    for name in ("r0c0", "r1c2"):
+        at = dict(frame=11, view=name)
+        assert bits(ds["reflectance"].sel(**at).values) == bits(one[name].cube)
+        assert bits(ds["registered"].sel(**at).values) == bits(one[name].registered)
+        assert bits(ds["disparity"].sel(**at).values) == bits(one[name].disparity)
+        assert bits(ds["visibility"].sel(**at).values) == bits(one[name].cameras_seeing)
+    # zarr-python sees one shard per frame and view.
+    group = zarr.open_group(store, mode="r")
+    assert group["reflectance"].shards == (1, 1, SIZE[1], SIZE[0], len(rig.wavelengths))
+    assert group.attrs["anaglyph"]["layout"]["frames"] == [10, 11, 12]
+
+    # A rerun of the same run finds every frame written; another run is refused.
+    again = anaglyph.reconstruct_frames(rig, frames, store=store, whites=whites, output="both", progress=False)
+    assert all(r.skipped for r in again.frames)
+    with pytest.raises(anaglyph.OutputConflictError, match="another run"):
+        anaglyph.reconstruct_frames(rig, frames, store=store, whites=whites, progress=False)
+    assert xr.open_zarr(store)["frame_done"].values.tolist() == [1, 1, 1]
+
+
+def test_bad_sequences_are_refused_before_any_work(clip, tmp_path):
+    rig, frames, whites = clip
+    missing = dict(frames)
+    missing[11] = {k: v for k, v in frames[11].items() if k != "r0c3"}
+    with pytest.raises(anaglyph.CapturesError, match="frame 11.*r0c3"):
+        anaglyph.reconstruct_frames(rig, missing, whites=whites, progress=False)
+    smaller = dict(frames)
+    smaller[12] = {k: v[:-1] for k, v in frames[12].items()}
+    with pytest.raises(anaglyph.RasterError, match="frame 12"):
+        anaglyph.reconstruct_frames(rig, smaller, whites=whites, progress=False)
+    with pytest.raises(ValueError, match="no frames"):
+        anaglyph.reconstruct_frames(rig, {}, whites=whites, progress=False)
+    with pytest.raises(TypeError, match="frame numbers"):
+        anaglyph.reconstruct_frames(rig, {"a": frames[10]}, whites=whites, progress=False)
+    a_file = tmp_path / "notes.zarr"
+    a_file.write_text("mine")
+    with pytest.raises(anaglyph.OutputConflictError, match="a file"):
+        anaglyph.reconstruct_frames(rig, frames, store=a_file, whites=whites, overwrite=True, progress=False)
+    assert a_file.read_text() == "mine"
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "data.csv").write_text("1,2")
+    with pytest.raises(anaglyph.OutputConflictError, match="not an anaglyph"):
+        anaglyph.reconstruct_frames(rig, frames, store=foreign, whites=whites, overwrite=True, progress=False)
+    assert (foreign / "data.csv").read_text() == "1,2"
+
+
+def test_without_a_store_every_frame_comes_back_in_memory(clip):
+    rig, frames, whites = clip
+    two = {k: frames[k] for k in (10, 12)}
+    out = anaglyph.reconstruct_frames(rig, two, whites=whites, views=["r0c1"], progress=False)
+    assert sorted(out) == [10, 12]
+    assert out[12]["r0c1"].cube.shape == (SIZE[1], SIZE[0], len(rig.wavelengths))
+    assert list(out[10].views) == ["r0c1"]
