@@ -6,7 +6,8 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::filters::SelectionCriterion;
 use anaglyph_core::plane_calibration::BoardPattern;
 use anaglyph_core::reconstruct::{
-    DisparitySearch, Preset, Products, DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
+    DisparitySearch, FrameLayout, FrameRange, Preset, Products, DEFAULT_SATURATION_LEVEL,
+    DEFAULT_WHITE_REFLECTANCE,
 };
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::OutOfBand;
@@ -559,6 +560,11 @@ fn parse_views(text: &str) -> Result<ViewList, String> {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Probes(pub Vec<(usize, usize)>);
 
+fn parse_frames(text: &str) -> Result<FrameRange, String> {
+    text.parse()
+        .map_err(|e: anaglyph_core::Error| e.to_string())
+}
+
 fn parse_probes(text: &str) -> Result<Probes, String> {
     let values: Vec<usize> = text
         .split(',')
@@ -582,9 +588,19 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub rig: PathBuf,
     /// Output folder (views/, disparity/, preview/, probes/, registered/, manifest.json), written
-    /// whole at the end: a killed run leaves the previous folder as it was.
+    /// whole at the end: a killed run leaves the previous folder as it was. A path ending in
+    /// `.zarr` is a Zarr v3 store instead (frame by frame with --frames; a rerun completes it).
     #[arg(long)]
     pub out: PathBuf,
+    /// Reconstruct a sequence: `all` the frames of --captures, frame numbers `A:B` (both
+    /// included) or one frame number. --captures holds a folder per frame
+    /// (<frame>/<camera>.png) or per camera (<camera>/<frame>.png); --out is a Zarr store.
+    #[arg(long, value_parser = parse_frames, requires = "captures")]
+    pub frames: Option<FrameRange>,
+    /// How --captures holds the frames (default: camera-major when it has a folder per
+    /// camera, else frame-major).
+    #[arg(long, value_enum, requires = "frames")]
+    pub layout: Option<FrameLayout>,
     /// Replace the output folder even if anaglyph did not write it (a folder anaglyph
     /// wrote is replaced whole without asking; one holding the inputs never is).
     #[arg(long)]

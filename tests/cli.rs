@@ -17,6 +17,8 @@ mod plane_registered;
 mod real_sensor;
 #[path = "cli/registered_stack.rs"]
 mod registered_stack;
+#[path = "cli/sequence.rs"]
+mod sequence;
 
 fn anaglyph(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_anaglyph"))

@@ -5,10 +5,10 @@
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
 use crate::cli::{ReconstructArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
-use anaglyph_core::io::{read_pfm, verify_output_subfolder};
+use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct, write_light_field, ArrayCaptures, Disparities, LightField, OutputOptions,
-    PipelineSettings, ReconstructOptions, SolveTuning, Stage,
+    reconstruct, write_light_field, ArrayCaptures, Disparities, FrameFiles, FrameSequence,
+    LightField, OutputOptions, PipelineSettings, ReconstructOptions, SolveTuning, Stage,
 };
 use anaglyph_core::rig::Rig;
 use anyhow::Context;
@@ -47,7 +47,16 @@ fn stage_bar() -> ProgressBar {
     bar
 }
 
+/// Whether `--out` names a Zarr store.
+fn is_store(out: &Path) -> bool {
+    out.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("zarr"))
+}
+
 pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
+    if args.frames.is_some() || is_store(&args.out) {
+        return run_sequence(args);
+    }
     let started = Instant::now();
     let request = reconstruct_options(&args);
     request.validate()?;
@@ -252,6 +261,136 @@ fn print_summary(field: &LightField) {
     for (stage, seconds) in &field.timings {
         println!("  {stage:<40} {}", format_seconds(*seconds));
     }
+}
+
+/// `reconstruct` into a Zarr store: the frames of `--frames` (or the one frame of the
+/// captures), each written as it finishes, with one progress bar.
+fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    if !is_store(&args.out) {
+        anyhow::bail!(
+            "--out {}: a sequence (--frames) goes to a Zarr store (expected a path ending in .zarr)",
+            args.out.display()
+        );
+    }
+    for (option, given) in [
+        ("--probe", args.probe.is_some()),
+        ("--truth", args.truth.is_some()),
+        ("--true-disparity", args.true_disparity.is_some()),
+    ] {
+        if given {
+            anyhow::bail!(
+                "{option} with --out {}: a Zarr store holds no probe plots or true disparities \
+                 (expected an output folder for them)",
+                args.out.display()
+            );
+        }
+    }
+    let request = reconstruct_options(&args);
+    request.validate()?;
+    let network = request.network()?;
+    let settings = request.settings(network.as_ref())?;
+    let rig = load_rig(&args)?;
+    let out = std::path::absolute(&args.out).unwrap_or_else(|_| args.out.clone());
+    for input in input_paths(&args, &rig) {
+        let input = std::path::absolute(&input).unwrap_or(input);
+        if input.starts_with(&out) || out == input {
+            anyhow::bail!(
+                "--out {}: holds the input {} (expected a store apart from the inputs)",
+                args.out.display(),
+                input.display()
+            );
+        }
+    }
+    // Every frame's files are found, and the first frame read, before any work.
+    let frames: Vec<Option<FrameFiles>> = match (args.frames, &args.captures) {
+        (Some(range), Some(dir)) => {
+            let sequence = FrameSequence::discover(&rig, dir, args.layout, range)?;
+            for (first, last) in sequence.gaps() {
+                eprintln!("note: frames {first} to {last} are missing from the numbering");
+            }
+            sequence.frames.into_iter().map(Some).collect()
+        }
+        _ => vec![None],
+    };
+    let numbers: Vec<i64> = frames
+        .iter()
+        .map(|f| f.as_ref().map_or(0, |f| f.number))
+        .collect();
+    let load = |frame: &Option<FrameFiles>| -> anyhow::Result<ArrayCaptures> {
+        let (white, calibration) = (args.white.as_deref(), args.calibration.as_deref());
+        Ok(match frame {
+            Some(files) => ArrayCaptures::load_frame(&rig, files, white, calibration)
+                .with_context(|| format!("frame {}", files.number))?,
+            None => ArrayCaptures::load(&rig, args.captures.as_deref(), white, calibration)?,
+        })
+    };
+    let first = load(&frames[0])?;
+    let layout = request.store_layout(
+        &settings,
+        &rig,
+        numbers.clone(),
+        (first.width, first.height),
+    )?;
+    let store = LightFieldStore::create(&args.out, layout, args.force)?;
+    let done = store.frames_done()?;
+    let todo = done.iter().filter(|d| !**d).count();
+    if todo < frames.len() {
+        eprintln!(
+            "note: {} of {} frames are already in {}; computing the other {todo}",
+            frames.len() - todo,
+            frames.len(),
+            args.out.display()
+        );
+    }
+    let bar = ProgressBar::new(todo as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "frame {msg:<24} [{bar:30}] {pos}/{len} frames [{elapsed}<{eta}]",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    let mut first = Some(first);
+    let mut seconds = Vec::new();
+    for ((frame, &number), done) in frames.iter().zip(&numbers).zip(done) {
+        if done {
+            first = None;
+            continue;
+        }
+        let clock = Instant::now();
+        let captures = match first.take() {
+            Some(captures) => captures,
+            None => load(frame)?,
+        };
+        let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
+            let stage = match stage {
+                Stage::Rectification => "rectification",
+                Stage::Registration => "registration",
+                Stage::Views => "views",
+            };
+            bar.set_message(format!("{number}: {stage} {done}/{total}"));
+        })
+        .with_context(|| format!("frame {number}"))?;
+        for warning in &field.warnings {
+            bar.suspend(|| eprintln!("warning: frame {number}: {warning}"));
+        }
+        seconds.push(clock.elapsed().as_secs_f64());
+        store.write_frame(number, &field, clock.elapsed().as_secs_f64())?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut sorted = seconds.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    println!(
+        "wrote {} frame(s) into {} (median {} per frame) in {}",
+        seconds.len(),
+        args.out.display(),
+        format_seconds(median),
+        format_seconds(started.elapsed().as_secs_f64())
+    );
+    Ok(())
 }
 
 #[cfg(test)]

@@ -65,12 +65,12 @@ fn frames_written_to_a_store_read_back_bit_for_bit_and_a_rerun_resumes() {
     let store =
         LightFieldStore::create(&path, layout(&fields[0], vec![10, 11], "a"), false).unwrap();
     assert_eq!(store.frames_done().unwrap(), vec![false, false]);
-    store.write_frame(11, &fields[1]).unwrap();
+    store.write_frame(11, &fields[1], 1.5).unwrap();
     // Reopened for the same run, the store keeps what was written: a rerun writes frame 10.
     let again =
         LightFieldStore::create(&path, layout(&fields[0], vec![10, 11], "a"), false).unwrap();
     assert_eq!(again.frames_done().unwrap(), vec![false, true]);
-    again.write_frame(10, &fields[0]).unwrap();
+    again.write_frame(10, &fields[0], 1.5).unwrap();
     assert_eq!(again.frames_done().unwrap(), vec![true, true]);
 
     let (w, h, nb) = (64, 48, fields[0].bands.len());
@@ -103,6 +103,7 @@ fn frames_written_to_a_store_read_back_bit_for_bit_and_a_rerun_resumes() {
         }
     }
     assert_eq!(read::<i64>(&path, "frame"), vec![10, 11]);
+    assert_eq!(read::<f64>(&path, "frame_seconds"), vec![1.5, 1.5]);
     assert_eq!(read::<String>(&path, "view")[7], "r1c3");
     assert_eq!(read::<f64>(&path, "wavelength"), fields[0].bands);
     // Every array carries its dimension names (xarray needs them) and the root group the
@@ -139,7 +140,7 @@ fn stores_of_other_runs_files_and_foreign_folders_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("run.zarr");
     let store = LightFieldStore::create(&path, layout(&field, vec![0, 1], "a"), false).unwrap();
-    store.write_frame(0, &field).unwrap();
+    store.write_frame(0, &field, 1.5).unwrap();
     // Another run's settings: refused, the store untouched; replaced when asked.
     let other = LightFieldStore::create(&path, layout(&field, vec![0, 1], "b"), false)
         .unwrap_err()
@@ -152,7 +153,10 @@ fn stores_of_other_runs_files_and_foreign_folders_are_refused() {
     let replaced = LightFieldStore::create(&path, layout(&field, vec![0, 1], "b"), true).unwrap();
     assert_eq!(replaced.frames_done().unwrap(), vec![false, false]);
     // A frame the store does not have, a file, a folder of someone else's.
-    let missing = replaced.write_frame(5, &field).unwrap_err().to_string();
+    let missing = replaced
+        .write_frame(5, &field, 1.5)
+        .unwrap_err()
+        .to_string();
     assert!(missing.contains("0 to 1"), "{missing}");
     let file_path = dir.path().join("notes.zarr");
     std::fs::write(&file_path, "mine").unwrap();

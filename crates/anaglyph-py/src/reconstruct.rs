@@ -306,10 +306,12 @@ pub fn reconstruct<'py>(
             }
             None => None,
         };
+        let computing = std::time::Instant::now();
         let field = core_reconstruct(rig, &captures, &settings, &report)?;
         let writing = std::time::Instant::now();
         if let Some(store) = &store {
-            store.write_frame(frame, &field)?;
+            let seconds = loading_seconds + computing.elapsed().as_secs_f64();
+            store.write_frame(frame, &field, seconds)?;
         }
         let writing_seconds = writing.elapsed().as_secs_f64();
         let mut parameters = options.record(&settings, rig);

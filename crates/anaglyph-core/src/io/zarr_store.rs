@@ -10,6 +10,7 @@
 //!   disparity/                float32 (frame, view, y, x), per column step, NaN unknown
 //!   visibility/               uint8   (frame, view, y, x): cameras that measured the pixel
 //!   frame_done/               uint8   (frame,): 1 once every array holds the frame
+//!   frame_seconds/            float64 (frame,): the frame's reconstruction time
 //!   frame, view, wavelength, channel   1-D coordinates (int64, string, float64 nm, string)
 //! ```
 //!
@@ -306,8 +307,9 @@ impl LightFieldStore {
     }
 
     /// Writes frame number `frame`'s light field (every view of the layout, its products)
-    /// and marks the frame done. Rewriting a frame writes the same shards again.
-    pub fn write_frame(&self, frame: i64, field: &LightField) -> Result<()> {
+    /// and the `seconds` its reconstruction took, and marks the frame done. Rewriting a
+    /// frame writes the same shards again.
+    pub fn write_frame(&self, frame: i64, field: &LightField, seconds: f64) -> Result<()> {
         let f = self.frame_index(frame)? as u64;
         let layout = &self.layout;
         if (field.width, field.height) != (layout.width, layout.height) {
@@ -379,6 +381,9 @@ impl LightFieldStore {
             write(&disparity, v, Shard::F32(&view.disparity.data))?;
             write(&visibility, v, Shard::U8(&view.cameras_seeing.data))?;
         }
+        self.array("frame_seconds")?
+            .store_chunk(&[f], &[seconds][..])
+            .map_err(|e| zarr_error(&self.path, e))?;
         self.array("frame_done")?
             .store_chunk(&[f], &[1u8][..])
             .map_err(|e| zarr_error(&self.path, e))
@@ -507,6 +512,16 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
         .map_err(|e| err(&e))?;
     frame_done.store_metadata().map_err(|e| err(&e))?;
     names.push("frame_done".into());
+    let frame_seconds = ArrayBuilder::new(vec![nf], vec![1], data_type::float64(), f64::NAN)
+        .dimension_names(Some(["frame"]))
+        .attributes(attributes(&[
+            ("long_name", "time the frame's reconstruction took"),
+            ("units", "s"),
+        ]))
+        .build(store.clone(), "/frame_seconds")
+        .map_err(|e| err(&e))?;
+    frame_seconds.store_metadata().map_err(|e| err(&e))?;
+    names.push("frame_seconds".into());
     let frame = ArrayBuilder::new(vec![nf], vec![nf], data_type::int64(), 0i64)
         .dimension_names(Some(["frame"]))
         .attributes(attributes(&[("long_name", "frame number")]))

@@ -100,6 +100,17 @@ pub(crate) fn find_in(dir: &Path, name: &str, extensions: &[&str], what: &str) -
     })
 }
 
+/// Where a camera's capture is.
+#[derive(Clone, Copy)]
+enum Captures<'a> {
+    /// Where the rig file names it.
+    Rig,
+    /// `<folder>/<camera>.png|tif|tiff`.
+    Folder(&'a Path),
+    /// This file.
+    File(&'a Path),
+}
+
 /// The files of one camera, found.
 struct CameraFiles {
     capture: PathBuf,
@@ -109,16 +120,18 @@ struct CameraFiles {
 }
 
 impl CameraFiles {
-    /// `cam`'s files in the folders given, else where the rig file names them.
+    /// `cam`'s files: its capture from `captures`, the rest in the folders given, else
+    /// where the rig file names them.
     fn find(
         cam: &Camera,
-        captures: Option<&Path>,
+        captures: Captures<'_>,
         whites: Option<&Path>,
         calibrations: Option<&Path>,
     ) -> Result<Self> {
         let capture = match captures {
-            Some(dir) => find_in(dir, &cam.name, &EXTENSIONS, "capture")?,
-            None => cam.image.clone().ok_or_else(|| {
+            Captures::Folder(dir) => find_in(dir, &cam.name, &EXTENSIONS, "capture")?,
+            Captures::File(path) => path.to_path_buf(),
+            Captures::Rig => cam.image.clone().ok_or_else(|| {
                 Error::captures(
                     format!("camera {}", cam.name),
                     "no image in the rig file and no --captures folder",
@@ -218,10 +231,40 @@ impl ArrayCaptures {
         whites: Option<&Path>,
         calibrations: Option<&Path>,
     ) -> Result<Self> {
+        let source = captures.map_or(Captures::Rig, Captures::Folder);
+        Self::load_from(rig, &vec![source; rig.cameras.len()], whites, calibrations)
+    }
+
+    /// [`ArrayCaptures::load`] of one frame of a sequence: its captures, and the white
+    /// boards, dark frames and calibrations of the sequence.
+    pub fn load_frame(
+        rig: &Rig,
+        frame: &super::FrameFiles,
+        whites: Option<&Path>,
+        calibrations: Option<&Path>,
+    ) -> Result<Self> {
+        if frame.captures.len() != rig.cameras.len() {
+            return Err(Error::Shape {
+                op: format!("frame {}: one capture per camera", frame.number),
+                got: vec![frame.captures.len()],
+                expected: vec![rig.cameras.len()],
+            });
+        }
+        let sources: Vec<Captures<'_>> = frame.captures.iter().map(|p| Captures::File(p)).collect();
+        Self::load_from(rig, &sources, whites, calibrations)
+    }
+
+    fn load_from(
+        rig: &Rig,
+        captures: &[Captures<'_>],
+        whites: Option<&Path>,
+        calibrations: Option<&Path>,
+    ) -> Result<Self> {
         let files = rig
             .cameras
             .iter()
-            .map(|cam| CameraFiles::find(cam, captures, whites, calibrations))
+            .zip(captures)
+            .map(|(cam, &source)| CameraFiles::find(cam, source, whites, calibrations))
             .collect::<Result<Vec<_>>>()?;
         let (width, height) = check_headers(rig, &files)?;
         let channels = rig.channel_count() as u64;

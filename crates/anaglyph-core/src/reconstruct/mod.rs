@@ -25,6 +25,7 @@ mod calibration;
 mod capture_checks;
 mod dark_level;
 mod flat_field;
+mod frames;
 mod inputs;
 mod options;
 mod output;
@@ -39,6 +40,7 @@ mod view;
 
 pub use capture_checks::{check_signal, BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
 pub use dark_level::Dark;
+pub use frames::{FrameFiles, FrameLayout, FrameRange, FrameSequence};
 pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
     UNEVEN_WHITE_WARNING,

@@ -1,0 +1,128 @@
+//! `reconstruct --frames`: a capture folder of frames (frame-major or camera-major) into a
+//! Zarr store, each frame equal to a single-frame run of its captures, a rerun completing
+//! the store, and bad sequences refused before any work.
+
+use super::{anaglyph, assert_clean_failure, stderr, stdout};
+use std::path::Path;
+use std::sync::Arc;
+use zarrs::array::Array;
+use zarrs::filesystem::FilesystemStore;
+
+const CAMERAS: [&str; 8] = [
+    "r0c0", "r0c1", "r0c2", "r0c3", "r1c0", "r1c1", "r1c2", "r1c3",
+];
+
+/// Two frames of the tabletop (different noise and exposures) under `dir/sim0` and
+/// `dir/sim1`, laid out as `dir/fm/frame_K/<camera>.png` and `dir/cm/<camera>/K.png`.
+fn two_frames(dir: &Path) {
+    for seed in 0..2 {
+        let out = format!("sim{seed}");
+        let seed = seed.to_string();
+        let o = anaglyph(
+            &[
+                "simulate", "--scene", "tabletop", "--size", "96x72", "--seed", &seed, "--out",
+                &out,
+            ],
+            dir,
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+        for cam in CAMERAS {
+            let from = dir.join(format!("{out}/captures/{cam}.png"));
+            let frame_major = dir.join(format!("fm/frame_{seed}/{cam}.png"));
+            let camera_major = dir.join(format!("cm/{cam}/{seed}.png"));
+            for to in [frame_major, camera_major] {
+                std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+                std::fs::copy(&from, &to).unwrap();
+            }
+        }
+    }
+}
+
+fn read_f32(store: &Path, name: &str) -> Vec<u32> {
+    let zarr = Arc::new(FilesystemStore::new(store).unwrap());
+    let array = Array::open(zarr, &format!("/{name}")).unwrap();
+    let values: Vec<f32> = array.retrieve_array_subset(&array.subset_all()).unwrap();
+    values.into_iter().map(f32::to_bits).collect()
+}
+
+fn reconstruct(
+    dir: &Path,
+    captures: &str,
+    out: &str,
+    frames: Option<&str>,
+) -> std::process::Output {
+    let mut args = vec![
+        "reconstruct",
+        "--rig",
+        "sim0/rig.toml",
+        "--white",
+        "sim0/white",
+        "--captures",
+        captures,
+        "--out",
+        out,
+        "--disp-range",
+        "0:12",
+    ];
+    if let Some(frames) = frames {
+        args.extend(["--frames", frames]);
+    }
+    anaglyph(&args, dir)
+}
+
+#[test]
+fn a_sequence_goes_to_a_zarr_store_frame_by_frame_in_either_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    two_frames(d);
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("wrote 2 frame(s) into fm.zarr"),
+        "{}",
+        stdout(&o)
+    );
+    let o = reconstruct(d, "cm", "cm.zarr", Some("all"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    // One frame alone, into a store of its own: the sequence's frame 1, bit for bit.
+    let o = reconstruct(d, "sim1/captures", "one.zarr", None);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for name in ["reflectance", "disparity"] {
+        let sequence = read_f32(&d.join("fm.zarr"), name);
+        assert_eq!(sequence, read_f32(&d.join("cm.zarr"), name), "{name}");
+        let one = read_f32(&d.join("one.zarr"), name);
+        assert_eq!(&sequence[sequence.len() / 2..], &one[..], "{name}");
+    }
+    // A rerun finds both frames written; frames 1:1 of another store is its own run.
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("2 of 2 frames are already in"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(stdout(&o).contains("wrote 0 frame(s)"), "{}", stdout(&o));
+    let o = reconstruct(d, "fm", "fm.zarr", Some("1:1"));
+    assert_clean_failure(&o, "a store of another run");
+}
+
+#[test]
+fn bad_sequences_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    two_frames(d);
+    assert_clean_failure(&reconstruct(d, "fm", "out", Some("all")), "ending in .zarr");
+    std::fs::remove_file(d.join("cm/r1c2/1.png")).unwrap();
+    let o = reconstruct(d, "cm", "cm.zarr", Some("all"));
+    assert_clean_failure(&o, "frame 1: no capture of camera r1c2");
+    std::fs::remove_file(d.join("fm/frame_0/r0c1.png")).unwrap();
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    assert_clean_failure(&o, "frame 0");
+    assert!(stderr(&o).contains("r0c1"), "{}", stderr(&o));
+    assert_clean_failure(
+        &reconstruct(d, "fm", "fm.zarr", Some("5:9")),
+        "no frames '5:9'",
+    );
+    assert_clean_failure(&reconstruct(d, "fm", "fm.zarr", Some("2:1")), "frames");
+    assert!(!d.join("fm.zarr").exists() && !d.join("cm.zarr").exists());
+}
