@@ -15,7 +15,8 @@
 //! ```
 //!
 //! Every array is sharded with one shard per frame and view (zstd-compressed inner chunks
-//! of at most 256 × 256 pixels, crc32c-checked index), so frames are written
+//! that tile it, about 200 pixels a side on large images; crc32c-checked index), so frames
+//! are written
 //! independently, by one process or by many. [`LightFieldStore::create`] writes the
 //! template (every array's metadata and the coordinates) in a hidden sibling folder and
 //! renames it into place, so a store is never half made; a frame is marked done in
@@ -27,6 +28,7 @@
 use super::MAX_RASTER_VALUES;
 use crate::reconstruct::LightField;
 use crate::{Error, Result};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -36,8 +38,12 @@ use zarrs::group::GroupBuilder;
 
 /// The root attribute that marks a store as anaglyph's and holds its [`StoreLayout`].
 const MARK: &str = "anaglyph";
-/// Side of the inner chunks (pixels) of every shard.
-const INNER_CHUNK_PX: usize = 256;
+/// Sides up to which a shard is one inner chunk; beyond, inner chunks of a divisor of
+/// the side between [`MIN_INNER_PX`] and [`MAX_INNER_PX`] pixels (zarr requires inner
+/// chunks that tile the shard).
+const WHOLE_SIDE_PX: usize = 512;
+const MIN_INNER_PX: usize = 64;
+const MAX_INNER_PX: usize = 256;
 /// zstd level of the inner chunks: the fastest, since writing is on every frame's path.
 const ZSTD_LEVEL: i32 = 1;
 
@@ -366,9 +372,11 @@ impl LightFieldStore {
             .transpose()?;
         let disparity = self.array("disparity")?;
         let visibility = self.array("visibility")?;
+        // Every shard on its own (each view's arrays are separate objects): in parallel.
+        let mut shards: Vec<(&Array<FilesystemStore>, usize, Shard<'_>)> = Vec::new();
         for (v, view) in views.iter().enumerate() {
             if let Some(array) = &reflectance {
-                write(array, v, Shard::F32(&view.reflectance.data))?;
+                shards.push((array, v, Shard::F32(&view.reflectance.data)));
             }
             if let Some(array) = &registered {
                 let stack = view.registered.as_ref().ok_or(Error::StageDependency {
@@ -376,11 +384,14 @@ impl LightFieldStore {
                     needs: "registered stacks",
                     why: "the store holds them; run with the registered output",
                 })?;
-                write(array, v, Shard::F32(&stack.data))?;
+                shards.push((array, v, Shard::F32(&stack.data)));
             }
-            write(&disparity, v, Shard::F32(&view.disparity.data))?;
-            write(&visibility, v, Shard::U8(&view.cameras_seeing.data))?;
+            shards.push((&disparity, v, Shard::F32(&view.disparity.data)));
+            shards.push((&visibility, v, Shard::U8(&view.cameras_seeing.data)));
         }
+        shards
+            .into_par_iter()
+            .try_for_each(|(array, v, data)| write(array, v, data))?;
         self.array("frame_seconds")?
             .store_chunk(&[f], &[seconds][..])
             .map_err(|e| zarr_error(&self.path, e))?;
@@ -391,9 +402,23 @@ impl LightFieldStore {
 }
 
 /// The values of one frame and view of an array.
+#[derive(Clone, Copy)]
 enum Shard<'a> {
     F32(&'a [f32]),
     U8(&'a [u8]),
+}
+
+/// The inner chunks' side along an image side of `n` pixels: the whole side up to
+/// [`WHOLE_SIDE_PX`], else its largest divisor in [`MIN_INNER_PX`, `MAX_INNER_PX`] (the
+/// whole side when it has none).
+fn inner_side(n: usize) -> usize {
+    if n <= WHOLE_SIDE_PX {
+        return n;
+    }
+    (MIN_INNER_PX..=MAX_INNER_PX)
+        .rev()
+        .find(|&d| n.is_multiple_of(d))
+        .unwrap_or(n)
 }
 
 /// `0 to 29` or `0, 2, 5` for messages.
@@ -416,8 +441,8 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
     let (nf, nv) = (layout.frames.len() as u64, layout.views.len() as u64);
     let (h, w) = (layout.height as u64, layout.width as u64);
     let (ch, cw) = (
-        (layout.height.min(INNER_CHUNK_PX)) as u64,
-        (layout.width.min(INNER_CHUNK_PX)) as u64,
+        inner_side(layout.height) as u64,
+        inner_side(layout.width) as u64,
     );
     let compress = || -> Vec<Arc<dyn BytesToBytesCodecTraits>> {
         vec![Arc::new(codec::ZstdCodec::new(ZSTD_LEVEL, false))]
@@ -594,4 +619,26 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
     });
     let text = serde_json::to_string_pretty(&root).map_err(|e| Error::output("zarr.json", e))?;
     super::write_atomically(&root_path, |out| out.write_all(text.as_bytes()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::inner_side;
+
+    #[test]
+    fn inner_chunks_tile_the_shard() {
+        for (side, inner) in [
+            (72, 72),
+            (480, 480),
+            (600, 200),
+            (1200, 240),
+            (1600, 200),
+            (1080, 216),
+            (1920, 240),
+            (1031, 1031),
+        ] {
+            assert_eq!(inner_side(side), inner, "{side}");
+            assert!(side.is_multiple_of(inner_side(side)));
+        }
+    }
 }
