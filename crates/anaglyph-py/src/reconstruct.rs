@@ -208,7 +208,8 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
                     model=None, registration="multi-baseline", solver="exact",
                     matching_image=None, warp_kernel=None, white_reflectance=None,
                     saturation=None, tuning=None, progress=None, store=None, frame=0,
-                    frames=None, overwrite=false, arrays=true, skip_done=false))]
+                    frames=None, overwrite=false, arrays=true, skip_done=false,
+                    create_only=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -237,6 +238,7 @@ pub fn reconstruct<'py>(
     overwrite: bool,
     arrays: bool,
     skip_done: bool,
+    create_only: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let rig = &rig.inner;
@@ -299,7 +301,7 @@ pub fn reconstruct<'py>(
                 let layout = options.store_layout(&settings, rig, frames, size)?;
                 let store = LightFieldStore::create(path, layout, overwrite)?;
                 let index = store.frame_index(frame)?;
-                if skip_done && store.frames_done()?[index] {
+                if create_only || (skip_done && store.frames_done()?[index]) {
                     return Ok(None);
                 }
                 Some(store)

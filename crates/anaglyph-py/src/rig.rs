@@ -47,6 +47,15 @@ impl Rig {
         })
     }
 
+    /// Pickling (Dask ships a rig to its workers): the TOML text and the folder its
+    /// relative paths start from, which `Rig.from_toml` reads back.
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (String, PathBuf))> {
+        let rig = &slf.get().inner;
+        let base = std::path::absolute(&rig.base_dir).unwrap_or_else(|_| rig.base_dir.clone());
+        let from_toml = slf.get_type().getattr("from_toml")?;
+        Ok((from_toml, (rig.file.to_toml_string().py()?, base)))
+    }
+
     /// A built-in rig: "paper-2x4", "mono-3x3" or "hexagon-7".
     #[staticmethod]
     fn preset(name: &str) -> PyResult<Self> {

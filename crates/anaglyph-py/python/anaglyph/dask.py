@@ -1,0 +1,156 @@
+"""Frame-sharded runs on a Dask cluster (``distributed``): batches of consecutive frames
+on the workers, each writing its own frames into one Zarr store.
+
+    from distributed import Client, LocalCluster
+    import anaglyph.dask
+
+    client = Client(LocalCluster(n_workers=2, threads_per_worker=1))
+    run = anaglyph.dask.reconstruct_frames(rig, frames, "clip.zarr", client=client, whites=whites)
+
+The store's template (every array's metadata, the coordinates) is written by the caller
+before any task; each task reconstructs a batch of frames and writes their shards (one per
+frame and view, so tasks never share one) and returns only a small report. A task that
+fails or whose worker is lost is run again by the scheduler and writes the same shards
+(frames already marked done are skipped). Each worker's reconstruction uses as many
+threads as the worker has (``anaglyph.set_num_threads``), so workers × threads never
+oversubscribe the cores. ``docs/cluster.md`` runs it on Slurm through ``dask-jobqueue``.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from ._core import Rig
+from ._frames import FrameReport, SequenceRun, _check_frames, _numbered
+from ._pipeline import PathLike, _captures, _core_options, _rig
+
+
+def _run_batch(
+    batch: list[tuple[int, dict[str, np.ndarray]]],
+    rig: Rig,
+    store: str,
+    numbers: list[int],
+    options: dict[str, Any],
+) -> list[dict[str, Any]]:
+    """Reconstructs and writes one batch of frames on a worker; returns their reports."""
+    import time
+
+    from distributed import get_worker
+
+    try:
+        _core.set_num_threads(max(1, int(get_worker().state.nthreads)))
+    except ValueError:  # not on a worker (a synchronous scheduler): keep the default
+        pass
+    reports = []
+    for number, captures in batch:
+        started = time.perf_counter()
+        out = _core.reconstruct(
+            rig,
+            captures,
+            store=store,
+            frame=number,
+            frames=numbers,
+            arrays=False,
+            skip_done=True,
+            **options,
+        )
+        reports.append(
+            {
+                "frame": number,
+                "seconds": time.perf_counter() - started,
+                "store_seconds": float(out.get("manifest", {}).get("store_seconds", 0.0)),
+                "skipped": bool(out["skipped"]),
+                "warnings": list(out.get("warnings", [])),
+            }
+        )
+    return reports
+
+
+def reconstruct_frames(
+    rig: Rig | str,
+    frames: Mapping[int, Mapping[str, np.ndarray]] | Sequence[Mapping[str, np.ndarray]],
+    store: PathLike,
+    client: Any = None,
+    batch: int = 4,
+    overwrite: bool = False,
+    progress: bool = True,
+    **options: Any,
+) -> SequenceRun:
+    """:func:`anaglyph.reconstruct_frames` into ``store`` on a Dask cluster: batches of
+    ``batch`` consecutive frames as tasks of ``client`` (default: the current client).
+    ``options`` are :func:`anaglyph.reconstruct`'s (``whites``, ``output``, ``preset``,
+    ...). ``store`` must be on a filesystem every worker sees. Returns the per-frame
+    reports in frame order; the bytes of the store are those of a serial run.
+    """
+    from distributed import get_client, wait
+    from distributed import progress as dask_progress
+
+    if batch < 1:
+        raise _core.SettingError(f"batch is {batch} (expected at least 1 frame per task)")
+    rig = _rig(rig)
+    numbered = _numbered(frames)
+    _check_frames(rig, numbered)
+    client = client if client is not None else get_client()
+    workers = client.scheduler_info().get("workers", {})
+    if not workers:
+        raise _core.SettingError(
+            "client: a Dask client with no workers (expected a cluster with at least one worker)"
+        )
+    core_options = _core_options(
+        whites=options.pop("whites", None),
+        darks=options.pop("darks", None),
+        calibration=options.pop("calibration", None),
+        views=options.pop("views", None),
+        preset=options.pop("preset", "default"),
+        output=options.pop("output", "cube"),
+        disp_range=options.pop("disp_range", "auto"),
+        method=options.pop("method", "mccnn"),
+        model=options.pop("model", None),
+        registration=options.pop("registration", "multi-baseline"),
+        solver=options.pop("solver", "exact"),
+        matching_image=options.pop("matching_image", None),
+        warp_kernel=options.pop("warp_kernel", None),
+        white_reflectance=options.pop("white_reflectance", None),
+        saturation=options.pop("saturation", None),
+        tuning=options.pop("tuning", None),
+    )
+    if options:
+        raise TypeError(f"reconstruct_frames: unknown options {sorted(options)}")
+    path = os.fspath(Path(store).absolute())
+    numbers = [n for n, _ in numbered]
+    # The template, before any task: made (or a store of the same run reopened) from the
+    # first frame's captures, with no compute.
+    first_number, first = numbered[0]
+    _core.reconstruct(
+        rig,
+        _captures(first, f"frame {first_number}"),
+        store=path,
+        frame=first_number,
+        frames=numbers,
+        overwrite=overwrite,
+        create_only=True,
+        **core_options,
+    )
+    batches = [
+        [(n, _captures(c, f"frame {n}")) for n, c in numbered[i : i + batch]]
+        for i in range(0, len(numbered), batch)
+    ]
+    # The run's settings travel with the function, each batch's captures with its task
+    # (not scattered: data scattered to a worker that dies is lost with it, while a task's
+    # own arguments are sent again when the scheduler reruns it).
+    run_batch = functools.partial(
+        _run_batch, rig=rig, store=path, numbers=numbers, options=core_options
+    )
+    futures = client.map(run_batch, batches, pure=False)
+    if progress:
+        dask_progress(futures)
+    wait(futures)
+    reports = [FrameReport(**r) for batch_reports in client.gather(futures) for r in batch_reports]
+    return SequenceRun(store=Path(store), frames=reports)
