@@ -5,7 +5,7 @@ use crate::compute::run;
 use crate::errors::{to_py, IntoPyResult};
 use anaglyph_core::image::Image;
 use anaglyph_core::io::{
-    read_envi as core_read_envi, read_linear_image, read_pfm as core_read_pfm,
+    read_envi as core_read_envi, read_image_header, read_linear_image, read_pfm as core_read_pfm,
 };
 use anaglyph_core::io::{write_envi as core_write_envi, write_pfm as core_write_pfm, EnviCube};
 use anaglyph_core::Error;
@@ -112,6 +112,31 @@ pub fn write_pfm(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>) -> PyR
     let data = c_order(&values).into_owned();
     let image = Image::new(width, height, channels, data).py()?;
     run(py, || core_write_pfm(&path, &image))
+}
+
+/// Reads an 8- or 16-bit PNG or TIFF capture as its samples, `uint8` or `uint16`, `(H, W)`
+/// or `(H, W, 3)`: what the file stores, which `reconstruct` scales by the type's full
+/// scale exactly as the CLI reads the file (a rig's `black_level` is in these units).
+#[pyfunction]
+pub fn read_capture<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyAny>> {
+    let (image, full_scale) = run(py, || {
+        let header = read_image_header(&path)?;
+        Ok((read_linear_image(&path)?, header.full_scale))
+    })?;
+    let Image {
+        width,
+        height,
+        channels,
+        data,
+    } = image;
+    let sample = |v: f32| (v * full_scale as f32).round();
+    if full_scale <= 255 {
+        let values = data.into_iter().map(|v| sample(v) as u8).collect();
+        Ok(image_array(py, Image::new(width, height, channels, values).py()?)?.into_any())
+    } else {
+        let values = data.into_iter().map(|v| sample(v) as u16).collect();
+        Ok(image_array(py, Image::new(width, height, channels, values).py()?)?.into_any())
+    }
 }
 
 /// Reads an 8- or 16-bit PNG or TIFF capture as linear float32 values in [0, 1] (full

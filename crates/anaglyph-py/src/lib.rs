@@ -62,5 +62,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(files::read_pfm, m)?)?;
     m.add_function(wrap_pyfunction!(files::write_pfm, m)?)?;
     m.add_function(wrap_pyfunction!(files::read_image, m)?)?;
+    m.add_function(wrap_pyfunction!(files::read_capture, m)?)?;
+    m.add_function(wrap_pyfunction!(reconstruct::discover_frames, m)?)?;
     Ok(())
 }

@@ -11,8 +11,9 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
 use anaglyph_core::io::{read_linear_image, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, DisparitySearch, Preset,
-    Products, ReconstructOptions, SolveTuning, Stage,
+    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, DisparitySearch,
+    FrameLayout, FrameRange, FrameSequence, Preset, Products, ReconstructOptions, SolveTuning,
+    Stage,
 };
 use anaglyph_core::rectify::{Calibration, Homography};
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
@@ -365,4 +366,25 @@ pub fn reconstruct<'py>(
         json.call_method1("loads", (manifest.to_string(),))?,
     )?;
     Ok(out)
+}
+
+/// The frames of a capture folder (see `anaglyph.read_frames`): `(number, paths)` in
+/// frame order, a path per camera of `rig` in its order; every file found before any is
+/// read.
+#[pyfunction]
+#[pyo3(signature = (rig, folder, layout=None, frames="all"))]
+pub fn discover_frames(
+    rig: &Rig,
+    folder: PathBuf,
+    layout: Option<&str>,
+    frames: &str,
+) -> PyResult<Vec<(i64, Vec<PathBuf>)>> {
+    let layout = layout.map(FrameLayout::parse_choice).transpose().py()?;
+    let range: FrameRange = frames.parse().py()?;
+    let sequence = FrameSequence::discover(&rig.inner, &folder, layout, range).py()?;
+    Ok(sequence
+        .frames
+        .into_iter()
+        .map(|f| (f.number, f.captures))
+        .collect())
 }

@@ -129,3 +129,24 @@ def test_bad_runs_are_refused_before_any_task(clip, client, tmp_path):
             anaglyph.dask.reconstruct_frames(rig, frames, tmp_path / "b.zarr", client=nobody, whites=whites)
     empty.close()
     assert not (tmp_path / "a.zarr").exists() and not (tmp_path / "b.zarr").exists()
+
+
+def test_workers_read_the_frames_of_a_folder_themselves(cli, client, tmp_path):
+    import anaglyph.dask
+    from conftest import run_cli
+
+    for seed in range(2):
+        run_cli(cli, "simulate", "--scene", "tabletop", "--size", "96x72", "--seed", str(seed), "--out", str(tmp_path / f"sim{seed}"))
+        (tmp_path / "clip" / f"{seed:04}").mkdir(parents=True)
+        for png in (tmp_path / f"sim{seed}" / "captures").iterdir():
+            (tmp_path / "clip" / f"{seed:04}" / png.name).write_bytes(png.read_bytes())
+    rig = anaglyph.Rig.load(tmp_path / "sim0" / "rig.toml")
+    clip = anaglyph.read_frames(tmp_path / "clip", rig)
+    whites = {c["name"]: anaglyph.read_capture(tmp_path / "sim0" / "white" / f"{c['name']}.png") for c in rig.cameras}
+    serial = tmp_path / "serial.zarr"
+    anaglyph.reconstruct_frames(rig, clip, store=serial, whites=whites, progress=False)
+    sharded = tmp_path / "sharded.zarr"
+    anaglyph.dask.reconstruct_frames(rig, clip, sharded, client=client, batch=1, whites=whites, progress=False)
+    expected, got = arrays(serial), arrays(sharded)
+    for name in expected:
+        assert expected[name].tobytes() == got[name].tobytes(), name

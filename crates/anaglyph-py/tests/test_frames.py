@@ -101,3 +101,37 @@ def test_without_a_store_every_frame_comes_back_in_memory(clip):
     assert sorted(out) == [10, 12]
     assert out[12]["r0c1"].cube.shape == (SIZE[1], SIZE[0], len(rig.wavelengths))
     assert list(out[10].views) == ["r0c1"]
+
+
+def test_a_folder_of_frames_gives_the_clis_store(cli, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    from conftest import run_cli
+
+    cameras = [c["name"] for c in anaglyph.Rig.preset("paper-2x4").cameras]
+    for seed in range(2):
+        run_cli(cli, "simulate", "--scene", "tabletop", "--size", "96x72", "--seed", str(seed), "--out", str(tmp_path / f"sim{seed}"))
+        for cam in cameras:
+            target = tmp_path / "clip" / cam / f"frame_{seed}.png"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes((tmp_path / f"sim{seed}" / "captures" / f"{cam}.png").read_bytes())
+    rig = anaglyph.Rig.load(tmp_path / "sim0" / "rig.toml")
+    clip = anaglyph.read_frames(tmp_path / "clip", rig)
+    assert list(clip) == [0, 1] and len(clip) == 2
+    frame = clip[1]
+    assert frame["r0c0"].dtype == np.uint16
+    np.testing.assert_array_equal(
+        frame["r0c0"].astype(np.float32) / 65535, anaglyph.read_image(clip.files(1)["r0c0"])
+    )
+    whites = {cam: anaglyph.read_capture(tmp_path / "sim0" / "white" / f"{cam}.png") for cam in cameras}
+    anaglyph.reconstruct_frames(rig, clip, store=tmp_path / "py.zarr", whites=whites, disp_range=(0, 12), progress=False)
+    run_cli(
+        cli, "reconstruct", "--rig", str(tmp_path / "sim0" / "rig.toml"), "--captures", str(tmp_path / "clip"),
+        "--white", str(tmp_path / "sim0" / "white"), "--frames", "all", "--disp-range", "0:12",
+        "--out", str(tmp_path / "cli.zarr"),
+    )
+    py, cli_store = zarr.open_group(tmp_path / "py.zarr", mode="r"), zarr.open_group(tmp_path / "cli.zarr", mode="r")
+    for name in ("reflectance", "disparity", "visibility"):
+        assert py[name][...].tobytes() == cli_store[name][...].tobytes(), name
+    with pytest.raises(anaglyph.CapturesError, match="frame 1"):
+        (tmp_path / "clip" / "r1c1" / "frame_1.png").unlink()
+        anaglyph.read_frames(tmp_path / "clip", rig)

@@ -24,6 +24,7 @@ from ._core import (
     __version__,
     demux,
     get_num_threads,
+    read_capture,
     read_envi,
     read_image,
     read_pfm,
@@ -32,7 +33,7 @@ from ._core import (
     write_envi,
     write_pfm,
 )
-from ._frames import FrameReport, SequenceRun, reconstruct_frames
+from ._frames import FrameFolder, FrameReport, SequenceRun, read_frames, reconstruct_frames
 from ._pipeline import Reconstruction, Simulation, View, calibrate, match, reconstruct, simulate
 
 # One exception class per cause of the core (made from its list of causes at import).
@@ -44,6 +45,7 @@ CHOICES: dict[str, list[str]] = _core.choices()
 
 __all__ = [
     "CHOICES",
+    "FrameFolder",
     "FrameReport",
     "Reconstruction",
     "Rig",
@@ -55,7 +57,9 @@ __all__ = [
     "demux",
     "get_num_threads",
     "match",
+    "read_capture",
     "read_envi",
+    "read_frames",
     "read_image",
     "read_pfm",
     "reconstruct",

@@ -53,6 +53,8 @@ __all__ = [
     "simulate",
     "calibrate",
     "reconstruct",
+    "read_capture",
+    "discover_frames",
     "read_envi",
     "write_envi",
     "read_pfm",
@@ -197,6 +199,10 @@ def reconstruct(
     skip_done: bool = False,
     create_only: bool = False,
 ) -> dict[str, Any]: ...
+def read_capture(path: _Path) -> npt.NDArray[np.uint8] | npt.NDArray[np.uint16]: ...
+def discover_frames(
+    rig: Rig, folder: _Path, layout: str | None = None, frames: str = "all"
+) -> list[tuple[int, list[str]]]: ...
 def read_envi(path: _Path) -> tuple[npt.NDArray[np.float32], list[float] | None, list[str] | None]: ...
 def write_envi(
     path: _Path,

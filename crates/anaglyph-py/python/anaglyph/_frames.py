@@ -50,12 +50,76 @@ class SequenceRun:
     frames: list[FrameReport]
 
 
+@dataclass
+class _LazyFrame:
+    """A frame of a folder, read when its captures are needed."""
+
+    folder: "FrameFolder"
+    number: int
+
+    def read(self) -> dict[str, np.ndarray]:
+        return self.folder[self.number]
+
+    def files(self) -> dict[str, str]:
+        return {k: os.fspath(v) for k, v in self.folder.files(self.number).items()}
+
+
+class FrameFolder(Mapping[int, dict[str, np.ndarray]]):
+    """The frames of a capture folder as a mapping frame number -> captures, each frame
+    read (its files' samples, :func:`read_capture`) when it is asked for; see
+    :func:`read_frames`. ``files(number)`` gives a frame's paths without reading them."""
+
+    def __init__(self, rig: Rig, folder: PathLike, layout: str | None = None, frames: str = "all"):
+        self.rig = rig
+        self.folder = Path(folder)
+        names = [c["name"] for c in rig.cameras]
+        self._files = {
+            number: dict(zip(names, (Path(p) for p in paths)))
+            for number, paths in _core.discover_frames(rig, os.fspath(folder), layout, frames)
+        }
+
+    def files(self, number: int) -> dict[str, Path]:
+        return dict(self._files[number])
+
+    def __getitem__(self, number: int) -> dict[str, np.ndarray]:
+        return {name: _core.read_capture(path) for name, path in self._files[number].items()}
+
+    def __iter__(self):
+        return iter(self._files)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def __repr__(self) -> str:
+        numbers = list(self._files)
+        return f"FrameFolder({str(self.folder)!r}, {len(numbers)} frames, {numbers[0]} to {numbers[-1]})"
+
+
+def read_frames(
+    folder: PathLike, rig: Rig | str, layout: str | None = None, frames: str = "all"
+) -> FrameFolder:
+    """The frames of a capture folder: a folder per frame (``<frame>/<camera>.png``,
+    ``layout="frame-major"``) or per camera (``<camera>/<frame>.png``, ``"camera-major"``;
+    the default when there is a folder per camera), numbered by the last number in each
+    name, in numerical order; ``frames`` is ``"all"``, ``"A:B"`` (both included) or one
+    number. Every capture is found here, before any is read; a frame's captures are read
+    when it is used (``frames[number]``), so a clip need not fit in memory. What
+    ``anaglyph reconstruct --frames`` reads.
+
+    >>> clip = anaglyph.read_frames("captures", rig)                          # doctest: +SKIP
+    >>> anaglyph.reconstruct_frames(rig, clip, store="clip.zarr", whites=w)   # doctest: +SKIP
+    """
+    return FrameFolder(_rig(rig), folder, layout, frames)
+
+
 def _numbered(frames: Any) -> list[tuple[int, Any]]:
     """``frames`` as (frame number, captures) pairs: a mapping keeps its numbers, a
     sequence is numbered from 0."""
     if isinstance(frames, (str, os.PathLike)):
-        raise TypeError("frames: a folder of frames is read with anaglyph.read_frames(folder)")
-    if isinstance(frames, Mapping):
+        raise TypeError("frames: a folder of frames is read with anaglyph.read_frames(folder, rig)")
+    if isinstance(frames, FrameFolder):
+        items = [(n, _LazyFrame(frames, n)) for n in frames]
+    elif isinstance(frames, Mapping):
         items = list(frames.items())
     elif isinstance(frames, Sequence):
         items = list(enumerate(frames))
@@ -79,7 +143,10 @@ def _numbered(frames: Any) -> list[tuple[int, Any]]:
 
 def _check_frames(rig: Rig, numbered: list[tuple[int, Any]]) -> None:
     """Every frame has the first frame's cameras, shapes and dtypes (checked before any
-    work; the core checks the first frame against the rig)."""
+    work; the core checks the first frame against the rig). The frames of a
+    :class:`FrameFolder` were found whole by the core and are read one at a time."""
+    if any(isinstance(c, _LazyFrame) for _, c in numbered):
+        return
     first_number, first = numbered[0]
     reference = _captures(first, f"frame {first_number}")
     shapes = {name: (np.shape(a), getattr(a, "dtype", None)) for name, a in reference.items()}
@@ -181,6 +248,8 @@ def reconstruct_frames(
             started = time.perf_counter()
             if bar is not None:
                 bar.set_postfix_str(f"frame {number}", refresh=True)
+            if isinstance(captures, _LazyFrame):
+                captures = captures.read()
             out = _core.reconstruct(
                 rig,
                 _captures(captures, f"frame {number}"),

@@ -28,7 +28,7 @@ import numpy as np
 
 from . import _core
 from ._core import Rig
-from ._frames import FrameReport, SequenceRun, _check_frames, _numbered
+from ._frames import FrameReport, SequenceRun, _check_frames, _LazyFrame, _numbered
 from ._pipeline import PathLike, _captures, _core_options, _rig
 
 
@@ -51,6 +51,10 @@ def _run_batch(
     reports = []
     for number, captures in batch:
         started = time.perf_counter()
+        # Frames of a folder travel as paths: the worker reads them (shared filesystem).
+        captures = {
+            name: _core.read_capture(v) if isinstance(v, str) else v for name, v in captures.items()
+        }
         out = _core.reconstruct(
             rig,
             captures,
@@ -128,6 +132,8 @@ def reconstruct_frames(
     # The template, before any task: made (or a store of the same run reopened) from the
     # first frame's captures, with no compute.
     first_number, first = numbered[0]
+    if isinstance(first, _LazyFrame):
+        first = first.read()
     _core.reconstruct(
         rig,
         _captures(first, f"frame {first_number}"),
@@ -138,8 +144,13 @@ def reconstruct_frames(
         create_only=True,
         **core_options,
     )
+    def shipped(number: int, captures: Any) -> dict[str, Any]:
+        if isinstance(captures, _LazyFrame):
+            return captures.files()
+        return _captures(captures, f"frame {number}")
+
     batches = [
-        [(n, _captures(c, f"frame {n}")) for n, c in numbered[i : i + batch]]
+        [(n, shipped(n, c)) for n, c in numbered[i : i + batch]]
         for i in range(0, len(numbered), batch)
     ]
     # The run's settings travel with the function, each batch's captures with its task
