@@ -237,10 +237,16 @@ fn parse_size(text: &str) -> Result<(usize, usize), String> {
 
 #[derive(Debug, clap::Args)]
 pub struct SimulateArgs {
-    /// A preset (tabletop, clutter, periodic, checkerboard), `random` (seeded by --seed) or
-    /// a scene TOML file.
+    /// A preset (tabletop, clutter, periodic, checkerboard, tabletop-moving), `random`
+    /// (seeded by --seed) or a scene TOML file.
     #[arg(long)]
     pub scene: String,
+    /// Render a sequence of N frames: objects move by their `velocity_mm` and turn by their
+    /// `spin_deg` each frame (the array by the scene's `camera_velocity_mm`), new noise per
+    /// frame, the same exposures; captures/frame_KKKK/ and truth/frame_KKKK/ per frame, one
+    /// white board per camera (`reconstruct --frames all` reads it).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10000))]
+    pub frames: Option<u32>,
     /// A rig file, or a preset: paper-2x4 (the paper's rig with the selected gels),
     /// mono-3x3 or hexagon-7 (narrow-band monochrome arrays, data/rigs/).
     #[arg(long, default_value = "paper-2x4")]

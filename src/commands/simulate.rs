@@ -6,7 +6,8 @@ use crate::progress::spinner;
 use anaglyph_core::rig::Rig;
 use anaglyph_core::scene::{MetamerVariation, Scene, SceneFile};
 use anaglyph_core::simulate::{
-    write_simulation, DarkSignal, PoseJitter, Simulation, SimulationSettings,
+    write_simulation, write_simulation_frames, DarkSignal, PoseJitter, Simulation,
+    SimulationSettings,
 };
 use anyhow::Context;
 use std::path::Path;
@@ -61,6 +62,55 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         settings.height
     ));
     let start = Instant::now();
+    if let Some(frames) = args.frames {
+        if !file.moves() {
+            eprintln!(
+                "note: nothing in scene '{}' moves (give objects velocity_mm or spin_deg, or use \
+                 tabletop-moving): the frames differ by their noise only",
+                file.name
+            );
+        }
+        let mut rendered = 0.0;
+        let count = write_simulation_frames(
+            &folder,
+            &rig,
+            &file,
+            frames as usize,
+            |k| {
+                bar.set_message(format!("rendering frame {}/{frames}", k + 1));
+                let at = Scene::resolve(file.at_frame(k), &base).map_err(|e| {
+                    anaglyph_core::Error::scene(
+                        format!("frame {k}"),
+                        e.to_string(),
+                        "a scene every frame can render (move objects less, or render fewer frames)",
+                    )
+                })?;
+                Simulation::run(
+                    &rig,
+                    &at,
+                    SimulationSettings {
+                        frame: k,
+                        ..settings.clone()
+                    },
+                )
+            },
+            &mut rendered,
+        )?;
+        let out = folder.commit()?;
+        bar.finish_and_clear();
+        println!(
+            "scene '{}' through rig '{}': {frames} frames of {} views at {}×{} rendered in {}, written in {}",
+            file.name,
+            rig.file.name,
+            rig.cameras.len(),
+            settings.width,
+            settings.height,
+            format_seconds(rendered),
+            format_seconds(start.elapsed().as_secs_f64() - rendered)
+        );
+        println!("wrote {count} files under {}", out.display());
+        return Ok(());
+    }
     let simulation = Simulation::run(&rig, &scene, settings)?;
     let rendered = start.elapsed().as_secs_f64();
     bar.set_message("writing files");

@@ -126,3 +126,67 @@ fn bad_sequences_are_refused_before_any_work() {
     assert_clean_failure(&reconstruct(d, "fm", "fm.zarr", Some("2:1")), "frames");
     assert!(!d.join("fm.zarr").exists() && !d.join("cm.zarr").exists());
 }
+
+#[test]
+fn a_simulated_moving_sequence_reconstructs_frame_by_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop-moving",
+            "--size",
+            "96x72",
+            "--frames",
+            "3",
+            "--out",
+            "seq",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("3 frames of 8 views"), "{}", stdout(&o));
+    for k in 0..3 {
+        assert!(d
+            .join(format!("seq/captures/frame_{k:04}/r1c3.png"))
+            .is_file());
+        assert!(d
+            .join(format!("seq/truth/frame_{k:04}/r0c0_disparity.pfm"))
+            .is_file());
+    }
+    assert!(d.join("seq/white/r0c0.png").is_file());
+    let o = anaglyph(
+        &[
+            "reconstruct",
+            "--rig",
+            "seq/rig.toml",
+            "--captures",
+            "seq/captures",
+            "--white",
+            "seq/white",
+            "--frames",
+            "all",
+            "--disp-range",
+            "0:12",
+            "--out",
+            "seq.zarr",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("wrote 3 frame(s)"), "{}", stdout(&o));
+    // A scene that does not move is said to differ by its noise only.
+    let o = anaglyph(
+        &[
+            "simulate", "--scene", "tabletop", "--size", "32x24", "--frames", "2", "--out", "still",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("nothing in scene 'tabletop' moves"),
+        "{}",
+        stderr(&o)
+    );
+}

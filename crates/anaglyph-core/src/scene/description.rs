@@ -59,6 +59,10 @@ pub const PRESETS: &[(&str, &str)] = &[
         "checkerboard",
         include_str!("../../../../data/scenes/checkerboard.toml"),
     ),
+    (
+        "tabletop-moving",
+        include_str!("../../../../data/scenes/tabletop-moving.toml"),
+    ),
 ];
 
 /// The preset scenes the quality tables and the demo reconstruct (the `checkerboard` is
@@ -79,6 +83,12 @@ pub struct ShapeSpec {
     pub width_mm: Option<f64>,
     #[serde(default)]
     pub rotation_deg: [f64; 3],
+    /// Motion per frame of a sequence (`simulate --frames`): the centre moves by
+    /// `velocity_mm` and the rotation turns by `spin_deg` each frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub velocity_mm: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spin_deg: Option<[f64; 3]>,
 }
 
 /// A material as written in the file.
@@ -130,6 +140,9 @@ pub struct SceneFile {
     pub description: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub illuminant: Option<String>,
+    /// The array's own motion per frame of a sequence, mm (the scene moves by its opposite).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_velocity_mm: Option<[f64; 3]>,
     #[serde(rename = "object")]
     pub objects: Vec<ObjectSpec>,
 }
@@ -176,6 +189,46 @@ impl SceneFile {
                         .join(", "),
                 })?;
         Self::from_toml_str(text, &format!("preset '{name}'"))
+    }
+
+    /// The scene at frame `frame` of a sequence: every object moved by its `velocity_mm`
+    /// and turned by its `spin_deg` `frame` times, and by the opposite of the array's
+    /// `camera_velocity_mm`. Reflectances do not change; frame 0 is the scene as written.
+    pub fn at_frame(&self, frame: u64) -> SceneFile {
+        let k = frame as f64;
+        let camera = self.camera_velocity_mm.unwrap_or([0.0; 3]);
+        let mut file = self.clone();
+        for object in &mut file.objects {
+            for shape in [
+                &mut object.rectangle,
+                &mut object.sphere,
+                &mut object.cuboid,
+                &mut object.chart,
+            ]
+            .into_iter()
+            .flatten()
+            {
+                let v = shape.velocity_mm.unwrap_or([0.0; 3]);
+                let w = shape.spin_deg.unwrap_or([0.0; 3]);
+                for a in 0..3 {
+                    shape.centre_mm[a] += k * (v[a] - camera[a]);
+                    shape.rotation_deg[a] += k * w[a];
+                }
+            }
+        }
+        file
+    }
+
+    /// Whether anything in the scene moves between frames.
+    pub fn moves(&self) -> bool {
+        let nonzero = |v: Option<[f64; 3]>| v.is_some_and(|v| v.iter().any(|&x| x != 0.0));
+        nonzero(self.camera_velocity_mm)
+            || self.objects.iter().any(|o| {
+                [&o.rectangle, &o.sphere, &o.cuboid, &o.chart]
+                    .into_iter()
+                    .flatten()
+                    .any(|s| nonzero(s.velocity_mm) || nonzero(s.spin_deg))
+            })
     }
 
     /// The scene a user names: a preset ([`PRESETS`]), `random` (from `seed`), or a scene
@@ -537,6 +590,23 @@ impl Scene {
                 format!("1 to {MAX_OBJECTS}"),
             ));
         }
+        let finite = |v: Option<[f64; 3]>| v.is_none_or(|v| v.iter().all(|x| x.is_finite()));
+        let moving = file.objects.iter().flat_map(|o| {
+            [&o.rectangle, &o.sphere, &o.cuboid, &o.chart]
+                .into_iter()
+                .flatten()
+                .flat_map(|s| [s.velocity_mm, s.spin_deg])
+        });
+        if let Some(bad) = std::iter::once(file.camera_velocity_mm)
+            .chain(moving)
+            .find(|v| !finite(*v))
+        {
+            return Err(Error::scene(
+                format!("scene '{}'", file.name),
+                format!("a motion of {bad:?} per frame"),
+                "finite velocity_mm, spin_deg and camera_velocity_mm",
+            ));
+        }
         let mut resolver = Resolver {
             base,
             textures: HashMap::new(),
@@ -634,6 +704,8 @@ pub fn random_scene(seed: u64) -> SceneFile {
             radius_mm: None,
             width_mm: None,
             rotation_deg: [0.0; 3],
+            velocity_mm: None,
+            spin_deg: None,
         }),
         material: Some(MaterialSpec {
             texture: Some(textures[rng.random_range(0..textures.len())].to_string()),
@@ -662,6 +734,8 @@ pub fn random_scene(seed: u64) -> SceneFile {
             radius_mm: None,
             width_mm: None,
             rotation_deg: rotation,
+            velocity_mm: None,
+            spin_deg: None,
         };
         let mut object = ObjectSpec {
             material: Some(random_material(&mut rng)),
@@ -693,6 +767,7 @@ pub fn random_scene(seed: u64) -> SceneFile {
         name: format!("random-{seed}"),
         description: Some("random training scene".into()),
         illuminant: None,
+        camera_velocity_mm: None,
         objects,
     }
 }

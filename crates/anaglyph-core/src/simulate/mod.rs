@@ -16,5 +16,5 @@ mod render;
 
 pub use contact_sheet::write_contact_sheet;
 pub use dark::{DarkSignal, DARK_FRAMES, MAX_DARK_LEVEL};
-pub use output::write_simulation;
+pub use output::{write_simulation, write_simulation_frames};
 pub use render::{render_view, PoseJitter, RenderedView, Simulation, SimulationSettings};

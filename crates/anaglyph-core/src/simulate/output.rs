@@ -59,6 +59,9 @@ struct Manifest<'a> {
     settings: &'a super::SimulationSettings,
     bands_nm: &'a [f64],
     views: Vec<ViewRecord>,
+    /// Frames of a sequence (absent: one frame); `views` are frame 0's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frames: Option<usize>,
     seconds: f64,
 }
 
@@ -75,18 +78,87 @@ pub fn write_simulation(
     simulation: &Simulation,
     seconds: f64,
 ) -> Result<usize> {
+    let records = write_frame(folder, scene, simulation, None)?;
+    write_common(folder, rig, scene, simulation, records, None, seconds)
+}
+
+/// Writes a sequence of `frames` frames into `folder`, frame by frame (`render(k)` gives
+/// frame k's simulation; none is kept): `captures/frame_KKKK/<camera>.png` and
+/// `truth/frame_KKKK/` per frame, the white boards, dark frames, calibrations, rig and
+/// contact sheet of frame 0 (a sequence's white board, dark frame and calibration serve
+/// every frame). Returns the number of files; the caller commits the folder.
+pub fn write_simulation_frames(
+    folder: &OutputFolder,
+    rig: &Rig,
+    scene: &SceneFile,
+    frames: usize,
+    mut render: impl FnMut(u64) -> Result<Simulation>,
+    seconds: &mut f64,
+) -> Result<usize> {
+    let mut first = None;
+    for k in 0..frames {
+        let clock = std::time::Instant::now();
+        let simulation = render(k as u64)?;
+        *seconds += clock.elapsed().as_secs_f64();
+        let records = write_frame(folder, scene, &simulation, Some(k))?;
+        if k == 0 {
+            first = Some((simulation, records));
+        }
+    }
+    let (simulation, records) = first
+        .ok_or_else(|| Error::setting("simulated sequence", "no frames", "at least one frame"))?;
+    write_common(
+        folder,
+        rig,
+        scene,
+        &simulation,
+        records,
+        Some(frames),
+        *seconds,
+    )
+}
+
+/// One frame's files (`frame`: its number in a sequence, None: a single frame); the
+/// records of its views.
+fn write_frame(
+    folder: &OutputFolder,
+    scene: &SceneFile,
+    simulation: &Simulation,
+    frame: Option<usize>,
+) -> Result<Vec<ViewRecord>> {
     let dir = folder.path();
-    for sub in ["captures", "white", "truth", "calibration"] {
-        create_dir(&dir.join(sub))?;
+    let sub = frame.map_or(String::new(), |k| format!("/frame_{k:04}"));
+    for base in ["captures", "truth"] {
+        create_dir(&dir.join(format!("{base}{sub}")))?;
     }
-    if simulation.settings.dark.is_some() {
-        create_dir(&dir.join("dark"))?;
+    if frame.is_none_or(|k| k == 0) {
+        for extra in ["white", "calibration"] {
+            create_dir(&dir.join(extra))?;
+        }
+        if simulation.settings.dark.is_some() {
+            create_dir(&dir.join("dark"))?;
+        }
     }
-    let mut records = Vec::new();
-    for view in &simulation.views {
-        records.push(write_view(dir, scene, simulation, view)?);
-    }
-    let rig_file = simulated_rig_file(rig, simulation);
+    simulation
+        .views
+        .iter()
+        .map(|view| write_view(dir, scene, simulation, view, frame))
+        .collect()
+}
+
+/// What a simulation's folder holds besides its frames: rig, scene, contact sheet and the
+/// manifest (last).
+fn write_common(
+    folder: &OutputFolder,
+    rig: &Rig,
+    scene: &SceneFile,
+    simulation: &Simulation,
+    records: Vec<ViewRecord>,
+    frames: Option<usize>,
+    seconds: f64,
+) -> Result<usize> {
+    let dir = folder.path();
+    let rig_file = simulated_rig_file(rig, simulation, frames.is_some());
     rig_file.save(&dir.join("rig.toml"))?;
     let scene_text = scene.to_toml_string()?;
     write_atomically(&dir.join("scene.toml"), |w| {
@@ -101,6 +173,7 @@ pub fn write_simulation(
         settings: &simulation.settings,
         bands_nm: &simulation.bands,
         views: records,
+        frames,
         seconds,
     })
 }
@@ -112,17 +185,19 @@ fn write_view(
     scene: &SceneFile,
     simulation: &Simulation,
     view: &RenderedView,
+    frame: Option<usize>,
 ) -> Result<ViewRecord> {
     let (w, h) = (simulation.settings.width, simulation.settings.height);
     let name = &view.name;
+    let sub = frame.map_or(String::new(), |k| format!("frame_{k:04}/"));
     let record = ViewRecord {
         name: view.name.clone(),
-        capture: format!("captures/{name}.png"),
+        capture: format!("captures/{sub}{name}.png"),
         white: format!("white/{name}.png"),
         dark: view.dark.as_ref().map(|_| format!("dark/{name}.png")),
-        truth: format!("truth/{name}.hdr"),
-        disparity: format!("truth/{name}_disparity.pfm"),
-        depth: format!("truth/{name}_depth.pfm"),
+        truth: format!("truth/{sub}{name}.hdr"),
+        disparity: format!("truth/{sub}{name}_disparity.pfm"),
+        depth: format!("truth/{sub}{name}_depth.pfm"),
         exposure: view.exposure,
         saturated_values: view.saturated,
         disparity_range: finite_range(&view.disparity),
@@ -134,9 +209,12 @@ fn write_view(
         data: data.to_vec(),
     };
     write_png16(&dir.join(&record.capture), &image(&view.capture))?;
-    write_png16(&dir.join(&record.white), &image(&view.white))?;
-    if let (Some(path), Some(dark)) = (&record.dark, &view.dark) {
-        write_png16(&dir.join(path), &image(dark))?;
+    let first = frame.is_none_or(|k| k == 0);
+    if first {
+        write_png16(&dir.join(&record.white), &image(&view.white))?;
+        if let (Some(path), Some(dark)) = (&record.dark, &view.dark) {
+            write_png16(&dir.join(path), &image(dark))?;
+        }
     }
     let cube = EnviCube {
         image: Image {
@@ -161,9 +239,11 @@ fn write_view(
     };
     write_pfm(&dir.join(&record.disparity), &plane(&view.disparity))?;
     write_pfm(&dir.join(&record.depth), &plane(&view.depth))?;
-    let calibration = dir.join(format!("calibration/{name}.json"));
-    let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
-    write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
+    if first {
+        let calibration = dir.join(format!("calibration/{name}.json"));
+        let text = CameraModel::from_pinhole(&view.camera).to_file_storage_json();
+        write_atomically(&calibration, |w| w.write_all(text.as_bytes()))?;
+    }
     Ok(record)
 }
 
@@ -180,12 +260,13 @@ fn finite_range(values: &[f32]) -> [f32; 2] {
 /// input rig's dark frames and black levels dropped (the captures hold only the dark
 /// signal the simulation rendered); curve references that are files made
 /// absolute, so that the copied rig still finds them (built-ins stay as they are).
-fn simulated_rig_file(rig: &Rig, simulation: &Simulation) -> RigFile {
+fn simulated_rig_file(rig: &Rig, simulation: &Simulation, sequence: bool) -> RigFile {
     let mut rig_file = rig.file.clone();
+    let frame = if sequence { "frame_0000/" } else { "" };
     for (view, cam) in simulation.views.iter().zip(&rig.cameras) {
         let name = &view.name;
         if let Some(entry) = rig_file.cameras.get_mut(cam.entry) {
-            entry.image = Some(PathBuf::from(format!("captures/{name}.png")));
+            entry.image = Some(PathBuf::from(format!("captures/{frame}{name}.png")));
             entry.white = Some(PathBuf::from(format!("white/{name}.png")));
             entry.exposure = Some(view.exposure);
             // The captures hold the dark signal the simulation rendered and no other: a

@@ -27,6 +27,10 @@ pub struct SimulationSettings {
     /// Rays per pixel side (n × n stratified samples per pixel).
     pub supersampling: usize,
     pub seed: u64,
+    /// The frame of a sequence: its sensor noise is drawn anew, while the exposures, the
+    /// dark signal's fixed pattern and the pose errors stay the seed's (one white board per
+    /// camera serves the whole sequence). Frame 0 is the single-frame simulation.
+    pub frame: u64,
     /// None: noise-free captures (for tests).
     pub noise: Option<CameraNoise>,
     /// Each camera's exposure is `noise.exposure × (1 − jitter·u)`, u uniform in [0, 1):
@@ -68,6 +72,7 @@ impl Default for SimulationSettings {
             height: 480,
             supersampling: 2,
             seed: 0,
+            frame: 0,
             noise: Some(CameraNoise::default()),
             exposure_jitter: 0.25,
             white_reflectance: 0.95,
@@ -261,6 +266,14 @@ impl Tracer<'_> {
             settings.seed ^ (camera_index as u64).wrapping_mul(0x9E37_79B9),
         );
         let jitter: f64 = rng.random();
+        if settings.frame > 0 {
+            // A later frame: the same exposure (the draw above), new noise.
+            rng = ChaCha8Rng::seed_from_u64(
+                settings.seed
+                    ^ (camera_index as u64).wrapping_mul(0x9E37_79B9)
+                    ^ settings.frame.wrapping_mul(0xD1B5_4A32_D192_ED03),
+            );
+        }
         let white_signal: Vec<f64> = self
             .rows_of_camera
             .iter()
