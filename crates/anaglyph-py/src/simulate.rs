@@ -17,7 +17,7 @@ use pyo3::types::PyDict;
 /// per camera; `wavelengths` (nm), `exposures` and `saturated_values` per camera.
 #[pyfunction]
 #[pyo3(signature = (scene, rig, width, height, seed=0, noise=true, supersampling=2,
-                    vignetting=0.0, dark=None))]
+                    vignetting=0.0, dark=None, frame=0))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate<'py>(
     py: Python<'py>,
@@ -30,13 +30,16 @@ pub fn simulate<'py>(
     supersampling: usize,
     vignetting: f64,
     dark: Option<(f64, f64)>,
+    frame: u64,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (file, base) = SceneFile::named(scene, seed).py()?;
+    let file = file.at_frame(frame);
     let mut settings = SimulationSettings {
         width,
         height,
         supersampling,
         seed,
+        frame,
         vignetting,
         dark: dark.map(|(level, pattern)| DarkSignal { level, pattern }),
         ..SimulationSettings::default()

@@ -163,6 +163,7 @@ def simulate(
     supersampling: int = 2,
     vignetting: float = 0.0,
     dark: tuple[float, float] | None = None,
+    frame: int = 0,
 ) -> dict[str, Any]: ...
 def calibrate(
     boards: dict[str, _Image],

@@ -114,10 +114,14 @@ def simulate(
     supersampling: int = 2,
     vignetting: float = 0.0,
     dark: tuple[float, float] | None = None,
+    frame: int = 0,
 ) -> Simulation:
     """Renders ``scene`` (``tabletop``, ``clutter``, ``periodic``, ``checkerboard``,
-    ``random`` or a scene file) through ``rig`` (a Rig, a preset name or a rig file) at
-    ``size=(width, height)``, with sensor noise, unknown exposures and white boards.
+    ``tabletop-moving``, ``random`` or a scene file) through ``rig`` (a Rig, a preset name
+    or a rig file) at ``size=(width, height)``, with sensor noise, unknown exposures and
+    white boards. ``frame``: the frame of a sequence (``simulate --frames``): objects moved
+    by their motion ``frame`` times, new noise, the seed's exposures (frame 0's white
+    boards serve every frame).
 
     >>> sim = anaglyph.simulate("tabletop", rig="paper-2x4", size=(160, 120))  # doctest: +SKIP
     >>> sim.captures["r0c0"].dtype                                             # doctest: +SKIP
@@ -127,7 +131,7 @@ def simulate(
     width, height = size
     out = _core.simulate(
         scene, rig, int(width), int(height), seed=seed, noise=noise, supersampling=supersampling,
-        vignetting=vignetting, dark=dark,
+        vignetting=vignetting, dark=dark, frame=frame,
     )
     return Simulation(rig=rig, **out)
 
