@@ -135,3 +135,15 @@ def test_a_folder_of_frames_gives_the_clis_store(cli, tmp_path):
     with pytest.raises(anaglyph.CapturesError, match="frame 1"):
         (tmp_path / "clip" / "r1c1" / "frame_1.png").unlink()
         anaglyph.read_frames(tmp_path / "clip", rig)
+
+
+def test_simulated_frames_move_and_keep_the_exposures():
+    rig = small_rig("paper-2x4", 64)
+    first = anaglyph.simulate("tabletop-moving", rig=rig, size=(64, 48), seed=3)
+    again = anaglyph.simulate("tabletop-moving", rig=rig, size=(64, 48), seed=3, frame=0)
+    later = anaglyph.simulate("tabletop-moving", rig=rig, size=(64, 48), seed=3, frame=5)
+    assert bits(first.captures["r0c0"]) == bits(again.captures["r0c0"])
+    assert first.exposures == later.exposures
+    assert bits(first.captures["r0c0"]) != bits(later.captures["r0c0"])
+    moved = np.abs(first.disparity["r0c0"] - later.disparity["r0c0"]) > 0.01
+    assert 0.02 < np.mean(moved) < 0.9
