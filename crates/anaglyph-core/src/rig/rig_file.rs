@@ -457,6 +457,22 @@ impl Rig {
             if let Some(light) = &illuminant {
                 light.check_covers(lo, hi)?;
             }
+            // An empty path would name the rig's own folder: refused as what it is.
+            for (key, path) in [
+                ("image", &e.image),
+                ("white", &e.white),
+                ("calibration", &e.calibration),
+                ("dark", &e.dark),
+            ] {
+                if path.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+                    return Err(Error::bad_field(
+                        format!("rig '{}'", file.name),
+                        format!("camera {}: {key}", placement.name),
+                        "\"\" (an empty path)",
+                        "the path of a file, or no key",
+                    ));
+                }
+            }
             // An absolute path replaces `base_dir`.
             let resolve_path = |p: &Option<PathBuf>| p.as_ref().map(|p| base_dir.join(p));
             cameras.push(Camera {
@@ -692,6 +708,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("t.toml"), "{err}");
+        let mut empty = Rig::paper_rig_file(&EIGHT);
+        empty.cameras[2].dark = Some(PathBuf::new());
+        let err = Rig::from_file(empty, ".".into()).unwrap_err().to_string();
+        assert!(err.contains("camera r0c2: dark is \"\""), "{err}");
         let mut zero = Rig::paper_rig_file(&EIGHT);
         zero.baseline_mm.as_mut().unwrap().vertical = 0.0;
         assert_eq!(
