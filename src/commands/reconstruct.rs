@@ -8,7 +8,7 @@ use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore};
 use anaglyph_core::reconstruct::{
     reconstruct, write_light_field, ArrayCaptures, Disparities, FrameFiles, FrameSequence,
-    LightField, OutputOptions, PipelineSettings, ReconstructOptions, SolveTuning, Stage,
+    LightField, OutputOptions, PipelineSettings, ReconstructOptions, SolveTuning,
 };
 use anaglyph_core::rig::Rig;
 use anyhow::Context;
@@ -107,11 +107,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
     };
     let bar = stage_bar();
     let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
-        bar.set_message(match stage {
-            Stage::Rectification => "rectification",
-            Stage::Registration => "registration",
-            Stage::Views => "views",
-        });
+        bar.set_message(stage.name());
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })?;
@@ -364,12 +360,7 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
             None => load(frame)?,
         };
         let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
-            let stage = match stage {
-                Stage::Rectification => "rectification",
-                Stage::Registration => "registration",
-                Stage::Views => "views",
-            };
-            bar.set_message(format!("{number}: {stage} {done}/{total}"));
+            bar.set_message(format!("{number}: {} {done}/{total}", stage.name()));
         })
         .with_context(|| format!("frame {number}"))?;
         for warning in &field.warnings {

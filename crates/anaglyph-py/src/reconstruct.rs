@@ -80,15 +80,6 @@ fn calibration_of(value: &Bound<'_, PyAny>, camera: &str) -> PyResult<Calibratio
     })
 }
 
-/// The stage's name as the progress callback receives it.
-fn stage_name(stage: Stage) -> &'static str {
-    match stage {
-        Stage::Rectification => "rectification",
-        Stage::Registration => "registration",
-        Stage::Views => "views",
-    }
-}
-
 /// The captures (and white boards, dark frames and calibrations) as the core's.
 fn array_captures(
     rig: &anaglyph_core::rig::Rig,
@@ -282,7 +273,7 @@ pub fn reconstruct<'py>(
     let report = |stage: Stage, done: usize, total: usize| {
         let Some(callback) = &progress else { return };
         Python::attach(|py| {
-            if let Err(e) = callback.call1(py, (stage_name(stage), done, total)) {
+            if let Err(e) = callback.call1(py, (stage.name(), done, total)) {
                 if let Ok(mut slot) = callback_error.lock() {
                     slot.get_or_insert(e);
                 }

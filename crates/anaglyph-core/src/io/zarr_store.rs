@@ -308,7 +308,7 @@ impl LightFieldStore {
             .ok_or_else(|| Error::NotFound {
                 what: "frame in the store".into(),
                 name: frame.to_string(),
-                available: summarise_frames(&self.layout.frames),
+                available: crate::reconstruct::summarise_numbers(&self.layout.frames),
             })
     }
 
@@ -421,18 +421,6 @@ fn inner_side(n: usize) -> usize {
         .unwrap_or(n)
 }
 
-/// `0 to 29` or `0, 2, 5` for messages.
-fn summarise_frames(frames: &[i64]) -> String {
-    match (frames.first(), frames.last()) {
-        (Some(a), Some(b)) if frames.windows(2).all(|w| w[1] == w[0] + 1) => format!("{a} to {b}"),
-        _ => frames
-            .iter()
-            .map(i64::to_string)
-            .collect::<Vec<_>>()
-            .join(", "),
-    }
-}
-
 /// Makes every array's metadata, the coordinates and the root group (with the
 /// consolidated metadata) in `dir`.
 fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
@@ -526,48 +514,52 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
         false,
         &[("long_name", "number of cameras that measured the pixel")],
     )?;
-    // Coordinates and the frames' completion, one chunk per frame.
-    let frame_done = ArrayBuilder::new(vec![nf], vec![1], data_type::uint8(), 0u8)
-        .dimension_names(Some(["frame"]))
-        .attributes(attributes(&[(
-            "long_name",
-            "1 once every array holds the frame",
-        )]))
-        .build(store.clone(), "/frame_done")
-        .map_err(|e| err(&e))?;
-    frame_done.store_metadata().map_err(|e| err(&e))?;
-    names.push("frame_done".into());
-    let frame_seconds = ArrayBuilder::new(vec![nf], vec![1], data_type::float64(), f64::NAN)
-        .dimension_names(Some(["frame"]))
-        .attributes(attributes(&[
-            ("long_name", "time the frame's reconstruction took"),
-            ("units", "s"),
-        ]))
-        .build(store.clone(), "/frame_seconds")
-        .map_err(|e| err(&e))?;
-    frame_seconds.store_metadata().map_err(|e| err(&e))?;
-    names.push("frame_seconds".into());
-    let frame = ArrayBuilder::new(vec![nf], vec![nf], data_type::int64(), 0i64)
-        .dimension_names(Some(["frame"]))
-        .attributes(attributes(&[("long_name", "frame number")]))
-        .build(store.clone(), "/frame")
-        .map_err(|e| err(&e))?;
-    frame.store_metadata().map_err(|e| err(&e))?;
-    frame
-        .store_chunk(&[0], &layout.frames[..])
-        .map_err(|e| err(&e))?;
-    names.push("frame".into());
-    let mut labels = |name: &str, values: &[String]| {
-        let n = values.len() as u64;
-        let array = ArrayBuilder::new(vec![n], vec![n], data_type::string(), "")
-            .dimension_names(Some([name]))
+    // Coordinates and the frames' completion (one chunk per frame, so that frames are
+    // marked independently): 1-D arrays, made and listed alike.
+    let mut one_d = |name: &str, dim: &str, builder: &mut ArrayBuilder, attrs: &[(&str, &str)]| {
+        let array = builder
+            .dimension_names(Some([dim]))
+            .attributes(attributes(attrs))
             .build(store.clone(), &format!("/{name}"))
             .map_err(|e| err(&e))?;
         array.store_metadata().map_err(|e| err(&e))?;
-        let refs: Vec<&str> = values.iter().map(String::as_str).collect();
-        array.store_chunk(&[0], refs).map_err(|e| err(&e))?;
         names.push(name.to_string());
-        Ok::<_, Error>(())
+        Ok::<_, Error>(array)
+    };
+    one_d(
+        "frame_done",
+        "frame",
+        &mut ArrayBuilder::new(vec![nf], vec![1], data_type::uint8(), 0u8),
+        &[("long_name", "1 once every array holds the frame")],
+    )?;
+    one_d(
+        "frame_seconds",
+        "frame",
+        &mut ArrayBuilder::new(vec![nf], vec![1], data_type::float64(), f64::NAN),
+        &[
+            ("long_name", "time the frame's reconstruction took"),
+            ("units", "s"),
+        ],
+    )?;
+    one_d(
+        "frame",
+        "frame",
+        &mut ArrayBuilder::new(vec![nf], vec![nf], data_type::int64(), 0i64),
+        &[("long_name", "frame number")],
+    )?
+    .store_chunk(&[0], &layout.frames[..])
+    .map_err(|e| err(&e))?;
+    let mut labels = |name: &str, values: &[String]| {
+        let n = values.len() as u64;
+        let refs: Vec<&str> = values.iter().map(String::as_str).collect();
+        one_d(
+            name,
+            name,
+            &mut ArrayBuilder::new(vec![n], vec![n], data_type::string(), ""),
+            &[],
+        )?
+        .store_chunk(&[0], refs)
+        .map_err(|e| err(&e))
     };
     labels("view", &layout.views)?;
     if layout.registered() {
@@ -575,16 +567,14 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
     }
     if layout.cubes() {
         let n = layout.wavelengths.len() as u64;
-        let wavelength = ArrayBuilder::new(vec![n], vec![n], data_type::float64(), 0f64)
-            .dimension_names(Some(["wavelength"]))
-            .attributes(attributes(&[("long_name", "band centre"), ("units", "nm")]))
-            .build(store.clone(), "/wavelength")
-            .map_err(|e| err(&e))?;
-        wavelength.store_metadata().map_err(|e| err(&e))?;
-        wavelength
-            .store_chunk(&[0], &layout.wavelengths[..])
-            .map_err(|e| err(&e))?;
-        names.push("wavelength".into());
+        one_d(
+            "wavelength",
+            "wavelength",
+            &mut ArrayBuilder::new(vec![n], vec![n], data_type::float64(), 0f64),
+            &[("long_name", "band centre"), ("units", "nm")],
+        )?
+        .store_chunk(&[0], &layout.wavelengths[..])
+        .map_err(|e| err(&e))?;
     }
     // The root group: the layout, then every array's metadata consolidated (zarr-python's
     // inline form), which xarray reads in one request.

@@ -254,7 +254,7 @@ impl FrameSequence {
             return Err(Error::NotFound {
                 what: "frames".into(),
                 name: format!("{first}:{last}"),
-                available: summarise(&available),
+                available: summarise_numbers(&available),
             });
         }
         Ok(FrameSequence { layout, frames })
@@ -292,7 +292,7 @@ fn frame_error(number: i64, e: Error) -> Error {
 }
 
 /// `0 to 29` or `0, 2, 5`.
-fn summarise(numbers: &[i64]) -> String {
+pub(crate) fn summarise_numbers(numbers: &[i64]) -> String {
     match (numbers.first(), numbers.last()) {
         (Some(a), Some(b)) if numbers.windows(2).all(|w| w[1] == w[0] + 1) => {
             format!("{a} to {b}")

@@ -40,6 +40,7 @@ mod view;
 
 pub use capture_checks::{check_signal, BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
 pub use dark_level::Dark;
+pub(crate) use frames::summarise_numbers;
 pub use frames::{FrameFiles, FrameLayout, FrameRange, FrameSequence};
 pub use inputs::{
     calibrate, ArrayCaptures, CameraCalibration, CameraCapture, BRIGHTER_THAN_WHITE_WARNING,
@@ -84,6 +85,17 @@ pub enum Stage {
     Registration,
     /// Views whose warp and solve are done.
     Views,
+}
+
+impl Stage {
+    /// The stage's name as progress displays give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Rectification => "rectification",
+            Stage::Registration => "registration",
+            Stage::Views => "views",
+        }
+    }
 }
 
 /// `progress(stage, done, total)`, called as work finishes.

@@ -19,9 +19,9 @@ from ._pipeline import (
     PathLike,
     Progress,
     Reconstruction,
-    View,
     _captures,
     _core_options,
+    _reconstruction,
     _rig,
 )
 
@@ -277,13 +277,7 @@ def reconstruct_frames(
                     )
                 )
                 if store is None:
-                    results[number] = Reconstruction(
-                        views={name: View(name=name, **view) for name, view in out["views"].items()},
-                        wavelengths=out["wavelengths"],
-                        channel_labels=out["channel_labels"],
-                        manifest=out["manifest"],
-                        warnings=out["warnings"],
-                    )
+                    results[number] = _reconstruction(out)
             if bar is not None:
                 bar.update(1)
     finally:

@@ -254,24 +254,25 @@ def _captures(captures: Any, what: str = "captures") -> dict[str, Any]:
 
 
 def _core_options(
-    whites: Mapping[str, np.ndarray] | None,
-    darks: Mapping[str, np.ndarray] | None,
-    calibration: Mapping[str, Any] | PathLike | None,
-    views: Sequence[str] | None,
-    preset: str,
-    output: str,
-    disp_range: str | tuple[int, int] | int,
-    method: str,
-    model: PathLike | None,
-    registration: str,
-    solver: str,
-    matching_image: str | None,
-    warp_kernel: str | None,
-    white_reflectance: float | None,
-    saturation: float | None,
-    tuning: Mapping[str, Any] | None,
+    whites: Mapping[str, np.ndarray] | None = None,
+    darks: Mapping[str, np.ndarray] | None = None,
+    calibration: Mapping[str, Any] | PathLike | None = None,
+    views: Sequence[str] | None = None,
+    preset: str = "default",
+    output: str = "cube",
+    disp_range: str | tuple[int, int] | int = "auto",
+    method: str = "mccnn",
+    model: PathLike | None = None,
+    registration: str = "multi-baseline",
+    solver: str = "exact",
+    matching_image: str | None = None,
+    warp_kernel: str | None = None,
+    white_reflectance: float | None = None,
+    saturation: float | None = None,
+    tuning: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The keyword arguments of ``_core.reconstruct`` for the wrapper's options."""
+    """The keyword arguments of ``_core.reconstruct`` for :func:`reconstruct`'s options
+    (with its defaults)."""
     search: Any = disp_range
     if not (isinstance(disp_range, str) and disp_range == "auto"):
         search = _disparity_range(disp_range)
@@ -364,9 +365,13 @@ def reconstruct(
             bar.close()
     for warning in out["warnings"]:
         logger.warning(warning)
-    views_out = {name: View(name=name, **view) for name, view in out["views"].items()}
+    return _reconstruction(out)
+
+
+def _reconstruction(out: dict[str, Any]) -> Reconstruction:
+    """The :class:`Reconstruction` of what ``_core.reconstruct`` returned."""
     return Reconstruction(
-        views=views_out,
+        views={name: View(name=name, **view) for name, view in out["views"].items()},
         wavelengths=out["wavelengths"],
         channel_labels=out["channel_labels"],
         manifest=out["manifest"],

@@ -19,6 +19,7 @@ oversubscribe the cores. ``docs/cluster.md`` runs it on Slurm through ``dask-job
 from __future__ import annotations
 
 import functools
+import inspect
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -107,26 +108,10 @@ def reconstruct_frames(
         raise _core.SettingError(
             "client: a Dask client with no workers (expected a cluster with at least one worker)"
         )
-    core_options = _core_options(
-        whites=options.pop("whites", None),
-        darks=options.pop("darks", None),
-        calibration=options.pop("calibration", None),
-        views=options.pop("views", None),
-        preset=options.pop("preset", "default"),
-        output=options.pop("output", "cube"),
-        disp_range=options.pop("disp_range", "auto"),
-        method=options.pop("method", "mccnn"),
-        model=options.pop("model", None),
-        registration=options.pop("registration", "multi-baseline"),
-        solver=options.pop("solver", "exact"),
-        matching_image=options.pop("matching_image", None),
-        warp_kernel=options.pop("warp_kernel", None),
-        white_reflectance=options.pop("white_reflectance", None),
-        saturation=options.pop("saturation", None),
-        tuning=options.pop("tuning", None),
-    )
-    if options:
-        raise TypeError(f"reconstruct_frames: unknown options {sorted(options)}")
+    unknown = sorted(set(options) - set(inspect.signature(_core_options).parameters))
+    if unknown:
+        raise TypeError(f"reconstruct_frames: unknown options {unknown}")
+    core_options = _core_options(**options)
     path = os.fspath(Path(store).absolute())
     numbers = [n for n, _ in numbered]
     # The template, before any task: made (or a store of the same run reopened) from the
