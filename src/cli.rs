@@ -607,6 +607,11 @@ pub struct ReconstructArgs {
     /// camera, else frame-major).
     #[arg(long, value_enum, requires = "frames")]
     pub layout: Option<FrameLayout>,
+    /// Reconstruct every frame of --frames alone, instead of starting each from what the
+    /// previous frame learned (the search range narrowed to its disparities, its views'
+    /// scene priors; a cut falls back to the full search by itself).
+    #[arg(long, requires = "frames")]
+    pub no_reuse: bool,
     /// Replace the output folder even if anaglyph did not write it (a folder anaglyph
     /// wrote is replaced whole without asking; one holding the inputs never is).
     #[arg(long)]

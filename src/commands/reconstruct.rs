@@ -7,8 +7,9 @@ use crate::cli::{ReconstructArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct, write_light_field, ArrayCaptures, Disparities, FrameFiles, FrameSequence,
-    LightField, OutputOptions, PipelineSettings, ReconstructOptions, SolveTuning,
+    reconstruct, reconstruct_next, write_light_field, ArrayCaptures, Disparities, FrameCarry,
+    FrameFiles, FrameSequence, LightField, OutputOptions, PipelineSettings, ReconstructOptions,
+    ReuseReport, SolveTuning, Stage,
 };
 use anaglyph_core::rig::Rig;
 use anyhow::Context;
@@ -188,6 +189,7 @@ fn reconstruct_options(args: &ReconstructArgs) -> ReconstructOptions {
             refine_epsilon: t.refine_epsilon,
             refine_confidence: t.refine_confidence,
         },
+        temporal_reuse: !args.no_reuse,
     }
 }
 
@@ -349,9 +351,14 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
     );
     let mut first = Some(first);
     let mut seconds = Vec::new();
+    // What the last frame computed hands to the next (temporal reuse).
+    let mut carry: Option<FrameCarry> = None;
+    let mut reused = ReuseTally::default();
     for ((frame, &number), done) in frames.iter().zip(&numbers).zip(done) {
         if done {
+            // The next frame computed follows a gap: nothing to carry over it.
             first = None;
+            carry = None;
             continue;
         }
         let clock = Instant::now();
@@ -359,18 +366,33 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
             Some(captures) => captures,
             None => load(frame)?,
         };
-        let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
+        let progress = |stage: Stage, done, total| {
             bar.set_message(format!("{number}: {} {done}/{total}", stage.name()));
-        })
-        .with_context(|| format!("frame {number}"))?;
+        };
+        let previous = carry.take().filter(|_| request.temporal_reuse);
+        let (field, next) =
+            reconstruct_next(&rig, &captures, &settings, &progress, previous.as_ref())
+                .with_context(|| format!("frame {number}"))?;
+        carry = Some(next);
         for warning in &field.warnings {
             bar.suspend(|| eprintln!("warning: frame {number}: {warning}"));
+        }
+        if let Some(report) = &field.reuse {
+            reused.add(report);
+            if report.cut {
+                bar.suspend(|| {
+                    eprintln!("note: frame {number} is a cut: reconstructed without reuse")
+                });
+            }
         }
         seconds.push(clock.elapsed().as_secs_f64());
         store.write_frame(number, &field, clock.elapsed().as_secs_f64())?;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if request.temporal_reuse && seconds.len() > 1 {
+        println!("{}", reused.summary());
+    }
     let mut sorted = seconds.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
@@ -382,6 +404,39 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
         format_seconds(started.elapsed().as_secs_f64())
     );
     Ok(())
+}
+
+/// What the frames of a run reused, summed for one line at the end.
+#[derive(Default)]
+struct ReuseTally {
+    frames: usize,
+    cuts: usize,
+    narrowed: usize,
+    fallbacks: usize,
+    priors_carried: usize,
+    priors: usize,
+}
+
+impl ReuseTally {
+    fn add(&mut self, report: &ReuseReport) {
+        if !report.previous {
+            return;
+        }
+        self.frames += 1;
+        self.cuts += usize::from(report.cut);
+        self.narrowed += usize::from(report.narrowed_range.is_some() && !report.range_fallback);
+        self.fallbacks += usize::from(report.range_fallback);
+        self.priors_carried += report.priors_carried;
+        self.priors += report.priors_carried + report.priors_learned;
+    }
+
+    fn summary(&self) -> String {
+        format!(
+            "temporal reuse over {} frame(s) after the first: {} cut(s), search range narrowed \
+             in {} (widened again in {}), {} of {} scene priors carried",
+            self.frames, self.cuts, self.narrowed, self.fallbacks, self.priors_carried, self.priors
+        )
+    }
 }
 
 #[cfg(test)]
@@ -422,7 +477,13 @@ mod tests {
             "lsqr",
             "--output",
             "both",
+            "--frames",
+            "all",
+            "--captures",
+            "c",
+            "--no-reuse",
         ]);
+        assert!(!given.temporal_reuse);
         assert_eq!(given.preset, Preset::Paper);
         assert_eq!(
             given.disp_range,

@@ -8,4 +8,5 @@ mod rectification;
 mod simulator;
 mod spectral_core;
 mod stereo;
+mod temporal_reuse;
 mod zarr_store;

@@ -47,6 +47,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     errors::register(m)?;
     m.add_class::<rig::Rig>()?;
+    m.add_class::<reconstruct::FrameCarry>()?;
     m.add_function(wrap_pyfunction!(choices, m)?)?;
     m.add_function(wrap_pyfunction!(compute::set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(compute::get_num_threads, m)?)?;

@@ -11,7 +11,7 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
 use anaglyph_core::io::{read_linear_image, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct as core_reconstruct, ArrayCaptures, CameraCapture, Dark, DisparitySearch,
+    reconstruct_next, ArrayCaptures, FrameCarry as CoreFrameCarry, CameraCapture, Dark, DisparitySearch,
     FrameLayout, FrameRange, FrameSequence, Preset, Products, ReconstructOptions, SolveTuning,
     Stage,
 };
@@ -191,6 +191,13 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
         .map(DisparitySearch::Fixed)
 }
 
+/// What one frame of a sequence hands to the next (`anaglyph.reconstruct_frames` passes
+/// it from frame to frame; opaque to Python).
+#[pyclass(module = "anaglyph._core", frozen)]
+pub struct FrameCarry {
+    inner: CoreFrameCarry,
+}
+
 /// Reconstructs the light field of `captures` (see the Python wrapper's docs). The
 /// keyword arguments fill the core's `ReconstructOptions`, the CLI's options by the same
 /// names; `tuning` is a JSON object of its `SolveTuning` fields.
@@ -201,7 +208,7 @@ fn search_range(disp_range: &Bound<'_, PyAny>) -> PyResult<DisparitySearch> {
                     matching_image=None, warp_kernel=None, white_reflectance=None,
                     saturation=None, tuning=None, progress=None, store=None, frame=0,
                     frames=None, overwrite=false, arrays=true, skip_done=false,
-                    create_only=false))]
+                    create_only=false, reuse=true, previous=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -231,6 +238,8 @@ pub fn reconstruct<'py>(
     arrays: bool,
     skip_done: bool,
     create_only: bool,
+    reuse: bool,
+    previous: Option<&FrameCarry>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let rig = &rig.inner;
@@ -259,6 +268,7 @@ pub fn reconstruct<'py>(
             .transpose()
             .py()?
             .unwrap_or_default(),
+        temporal_reuse: reuse,
     };
     if let Some(views) = &options.views {
         for name in views {
@@ -270,6 +280,8 @@ pub fn reconstruct<'py>(
     let loading_seconds = started.elapsed().as_secs_f64();
     let cancel = AtomicBool::new(false);
     let callback_error: Mutex<Option<PyErr>> = Mutex::new(None);
+    // The store's frames written before this call (a Dask task plans its batch by them).
+    let frames_done: Mutex<Option<Vec<bool>>> = Mutex::new(None);
     let report = |stage: Stage, done: usize, total: usize| {
         let Some(callback) = &progress else { return };
         Python::attach(|py| {
@@ -293,7 +305,12 @@ pub fn reconstruct<'py>(
                 let layout = options.store_layout(&settings, rig, frames, size)?;
                 let store = LightFieldStore::create(path, layout, overwrite)?;
                 let index = store.frame_index(frame)?;
-                if create_only || (skip_done && store.frames_done()?[index]) {
+                let done = store.frames_done()?;
+                let skip = create_only || (skip_done && done[index]);
+                if let Ok(mut slot) = frames_done.lock() {
+                    *slot = Some(done);
+                }
+                if skip {
                     return Ok(None);
                 }
                 Some(store)
@@ -301,7 +318,8 @@ pub fn reconstruct<'py>(
             None => None,
         };
         let computing = std::time::Instant::now();
-        let field = core_reconstruct(rig, &captures, &settings, &report)?;
+        let previous = previous.filter(|_| options.temporal_reuse).map(|p| &p.inner);
+        let (field, carry) = reconstruct_next(rig, &captures, &settings, &report, previous)?;
         let writing = std::time::Instant::now();
         if let Some(store) = &store {
             let seconds = loading_seconds + computing.elapsed().as_secs_f64();
@@ -316,17 +334,21 @@ pub fn reconstruct<'py>(
         if store.is_some() {
             manifest["store_seconds"] = writing_seconds.into();
         }
-        Ok(Some((field, manifest)))
+        Ok(Some((field, manifest, carry)))
     });
     if let Some(e) = callback_error.lock().ok().and_then(|mut slot| slot.take()) {
         return Err(e);
     }
     let out = PyDict::new(py);
-    let Some((field, manifest)) = outcome? else {
+    if let Some(done) = frames_done.lock().ok().and_then(|mut slot| slot.take()) {
+        out.set_item("frames_done", done)?;
+    }
+    let Some((field, manifest, carry)) = outcome? else {
         out.set_item("skipped", true)?;
         return Ok(out);
     };
     out.set_item("skipped", false)?;
+    out.set_item("carry", FrameCarry { inner: carry })?;
     let (w, h, bands) = (field.width, field.height, field.bands.len());
     let views = PyDict::new(py);
     for view in field.views.into_iter().filter(|_| arrays) {

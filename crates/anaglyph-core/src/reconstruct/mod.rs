@@ -34,6 +34,7 @@ mod probe_plot;
 mod rectification;
 mod registered_stack;
 mod registration;
+mod reuse;
 mod settings;
 mod summary;
 mod view;
@@ -54,6 +55,7 @@ pub use settings::{
     Disparities, DisparitySearch, PipelineSettings, Preset, DEFAULT_MAX_DISP,
     DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
 };
+pub use reuse::{block_correlation, FrameCarry, ReuseReport};
 pub use summary::ViewSummary;
 
 use crate::disparity::DisparityMap;
@@ -159,6 +161,9 @@ pub struct LightField {
     /// (stage, seconds) in the order run.
     pub timings: Vec<(String, f64)>,
     pub warnings: Vec<String>,
+    /// What the frame took from the previous frame of a sequence ([`reconstruct_next`];
+    /// None: a single frame, [`reconstruct`]).
+    pub reuse: Option<ReuseReport>,
 }
 
 /// Timings and warnings as the stages add them.
@@ -175,6 +180,23 @@ pub fn reconstruct(
     settings: &PipelineSettings<'_>,
     progress: &Progress<'_>,
 ) -> Result<LightField> {
+    let (mut field, _) = reconstruct_next(rig, captures, settings, progress, None)?;
+    field.reuse = None;
+    Ok(field)
+}
+
+/// [`reconstruct`] of one frame of a sequence, starting from what the previous frame
+/// handed on (`previous`; None: the first frame) where that is sound (temporal reuse,
+/// see `reuse.rs`): the search range narrowed by the previous maps, each view's scene
+/// prior, unless the frame is a cut. Returns the field, whose [`LightField::reuse`] says
+/// what was reused, and what this frame hands to the next.
+pub fn reconstruct_next(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    settings: &PipelineSettings<'_>,
+    progress: &Progress<'_>,
+    previous: Option<&FrameCarry>,
+) -> Result<(LightField, FrameCarry)> {
     settings.validate()?;
     if rig.cameras.len() < 2 {
         return Err(Error::rig_layout(
@@ -201,12 +223,32 @@ pub fn reconstruct(
     let captures = rectified.as_ref().map_or(captures, |r| &r.captures);
     settings.check_cancelled("calibration")?;
     let calibrated = calibrate_array(rig, captures, settings, &mut log)?;
+    let greys = captures.grey_images();
+    let (reuse, correlation) = match previous {
+        Some(carry) => carry.judge(&greys),
+        None => (None, None),
+    };
+    let cut = previous.is_some() && reuse.is_none();
+    let mut report = ReuseReport::fresh(previous.is_some(), cut, correlation);
     settings.check_cancelled("registration")?;
-    let registered = register_array(rig, captures, &calibrated, settings, &mut log, progress)?;
+    let registered = register_array(rig, captures, &calibrated, settings, (reuse, &mut report), &mut log, progress)?;
     let pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
-    let views = pass.run_all(&requested, &mut log, progress)?;
+    let priors = reuse.map(|r| r.carry.priors.as_slice());
+    let (views, used_priors) = pass.run_all(&requested, priors, &mut log, progress)?;
+    report.priors_carried = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| p.carried)).count();
+    report.priors_learned = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| !p.carried)).count();
+    let mut carried_priors = vec![None; rig.cameras.len()];
+    for (&v, prior) in requested.iter().zip(used_priors) {
+        carried_priors[v] = prior;
+    }
+    let carry = FrameCarry {
+        greys,
+        maps: registered.disparities.clone(),
+        range: registered.whole_range,
+        priors: carried_priors,
+    };
 
-    Ok(LightField {
+    let field = LightField {
         width: captures.width,
         height: captures.height,
         bands: rig.reconstruction_shape()?.wavelengths(),
@@ -221,7 +263,9 @@ pub fn reconstruct(
         condition_number: calibrated.condition_number,
         timings: log.timings,
         warnings: log.warnings,
-    })
+        reuse: Some(report),
+    };
+    Ok((field, carry))
 }
 
 /// Checks that the captures hold one capture per camera of the rig, in its order.

@@ -123,6 +123,9 @@ pub struct ReconstructOptions {
     /// None: the preset's.
     pub warp_kernel: Option<WarpKernel>,
     pub tuning: SolveTuning,
+    /// In a sequence, each frame starts from what the previous one learned where that is
+    /// sound ([`super::reconstruct_next`]); false: every frame is reconstructed alone.
+    pub temporal_reuse: bool,
 }
 
 impl Default for ReconstructOptions {
@@ -141,6 +144,7 @@ impl Default for ReconstructOptions {
             matching_image: None,
             warp_kernel: None,
             tuning: SolveTuning::default(),
+            temporal_reuse: true,
         }
     }
 }
@@ -252,6 +256,7 @@ impl ReconstructOptions {
             "disputed_tolerance": settings.solve.disputed_tolerance,
             "inconsistency_factor": settings.solve.inconsistency_factor,
             "warp_kernel": settings.warp_kernel.name(),
+            "temporal_reuse": self.temporal_reuse,
             "out_of_band": rig.file.reconstruction.out_of_band,
             "rig_name": rig.file.name,
             "cameras": rig

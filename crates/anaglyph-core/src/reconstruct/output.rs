@@ -87,6 +87,9 @@ struct Manifest<'a> {
     calibration: &'a [super::CameraCalibration],
     rectification: Option<&'a crate::rectify::Rectification>,
     search_range: Option<&'a crate::register::SearchRange>,
+    /// What a frame of a sequence took from the previous frame (absent: a single frame).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    temporal_reuse: Option<&'a super::ReuseReport>,
     /// The stages of each view's solve, in order, and their settings.
     solve_stages: Vec<&'static str>,
     refinement: Option<crate::refine::GuidedRefinement>,
@@ -331,6 +334,7 @@ fn manifest<'a>(
         calibration: &field.calibration,
         rectification: field.rectification.as_ref(),
         search_range: field.search_range.as_ref(),
+        temporal_reuse: field.reuse.as_ref(),
         solve_stages: field.solve_stages.clone(),
         refinement: field.solve.refinement,
         scene_prior: field.solve.scene_prior,

@@ -6,6 +6,7 @@
 //! column step, NaN where unknown), the search range when it was estimated, the common
 //! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
 
+use super::reuse::{at_narrowed_ends, Reuse, ReuseReport};
 use super::{
     ArrayCaptures, CalibratedArray, Disparities, DisparitySearch, PipelineSettings, RunLog, Stage,
 };
@@ -25,6 +26,9 @@ pub(super) struct RegisteredArray {
     /// Per camera (rig order), per column step of the array.
     pub disparities: Vec<DisparityMap>,
     pub search_range: Option<SearchRange>,
+    /// The whole range of a sequence's search (estimated, carried or given; None: given
+    /// disparities), which the next frame narrows.
+    pub whole_range: Option<DisparityRange>,
     pub common_signals: Option<Vec<CommonSignal>>,
     pub moved_to_planes: Option<Vec<usize>>,
     /// Per camera: the fraction of its disparities a neighbour's map confirms (NaN: none
@@ -39,6 +43,7 @@ pub(super) fn register_array(
     captures: &ArrayCaptures,
     calibrated: &CalibratedArray,
     settings: &PipelineSettings<'_>,
+    reuse: (Option<Reuse<'_>>, &mut ReuseReport),
     log: &mut RunLog,
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
@@ -47,7 +52,7 @@ pub(super) fn register_array(
         Disparities::Given(given) => given_maps(given, rig, captures)?,
         Disparities::Search(search) => {
             let search = (*search, &geometry);
-            estimate_maps(captures, calibrated, search, settings, log, progress)?
+            estimate_maps(captures, calibrated, search, settings, reuse, log, progress)?
         }
     };
     let maps = &registered.disparities;
@@ -84,32 +89,51 @@ fn given_maps(
     })
 }
 
-/// Registration of the captures over `search`'s range, estimated when asked.
+/// Registration of the captures over `search`'s range, estimated when asked; in a
+/// sequence, the carried range narrowed by the previous frame's maps (again over the
+/// whole range when the maps pile up at a narrowed end).
 fn estimate_maps(
     captures: &ArrayCaptures,
     calibrated: &CalibratedArray,
     (search, geometry): (DisparitySearch, &ArrayGeometry),
     settings: &PipelineSettings<'_>,
+    (reuse, report): (Option<Reuse<'_>>, &mut ReuseReport),
     log: &mut RunLog,
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
     let (matching, common) = matching_images(calibrated, settings)?;
     let images = view_images(captures, matching);
-    let (registration_settings, search_range) = match search {
-        DisparitySearch::Fixed(range) => (settings.registration_over(range), None),
-        DisparitySearch::Auto => {
+    let carried = reuse.and_then(|r| r.carry.range);
+    let (whole, search_range) = match (search, carried) {
+        (DisparitySearch::Fixed(range), _) => (range, None),
+        (DisparitySearch::Auto, Some(range)) => (range, None),
+        (DisparitySearch::Auto, None) => {
             // The estimate searches a coarse range of its own.
             let coarse = settings.registration_over(DisparityRange::up_to(2)?);
             let range = estimate_search_range(&images, geometry, &coarse)?;
             log.timings
                 .push(("search range".to_string(), range.seconds));
-            (settings.registration_over(range.range), Some(range))
+            (range.range, Some(range))
         }
     };
-    let registration =
-        register_views(&images, geometry, &registration_settings, &|done, total| {
+    let narrowed = reuse.and_then(|r| r.carry.narrowed(whole));
+    let register = |range: DisparityRange| {
+        register_views(&images, geometry, &settings.registration_over(range), &|done, total| {
             progress(Stage::Registration, done, total)
-        })?;
+        })
+    };
+    let mut registration = register(narrowed.unwrap_or(whole))?;
+    if let Some(narrowed) = narrowed {
+        report.narrowed_range = Some(narrowed);
+        if at_narrowed_ends(&registration.disparities, narrowed, whole) {
+            report.range_fallback = true;
+            for (name, seconds) in &registration.timings {
+                log.timings
+                    .push((format!("registration (narrowed): {name}"), *seconds));
+            }
+            registration = register(whole)?;
+        }
+    }
     for (name, seconds) in &registration.timings {
         log.timings
             .push((format!("registration: {name}"), *seconds));
@@ -117,6 +141,7 @@ fn estimate_maps(
     Ok(RegisteredArray {
         disparities: registration.disparities,
         search_range,
+        whole_range: Some(whole),
         common_signals: common,
         moved_to_planes: registration.moved_to_planes,
         ..RegisteredArray::default()

@@ -11,7 +11,7 @@ use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
 use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
-use crate::solve::{SolveContext, SolvePlan, ViewSolve};
+use crate::solve::{CarriedPrior, SolveContext, SolvePlan, ViewSolve};
 use crate::Result;
 use std::time::Instant;
 
@@ -54,26 +54,34 @@ impl<'a> ViewPass<'a> {
 
     /// Reconstructs the views of cameras `requested`, adding the warp's and each solve
     /// stage's seconds (summed over views) to `log`.
+    ///
+    /// `priors` (per camera, rig order) are the previous frame's scene priors of a
+    /// sequence; returned with the views are the priors each view's solve used.
     pub fn run_all(
         &self,
         requested: &[usize],
+        priors: Option<&[Option<CarriedPrior>]>,
         log: &mut RunLog,
         progress: &Progress<'_>,
-    ) -> Result<Vec<ReconstructedView>> {
+    ) -> Result<(Vec<ReconstructedView>, Vec<Option<CarriedPrior>>)> {
         let names = self.plan.names();
         let mut seconds = vec![0.0; names.len() + 1];
         let mut views = Vec::with_capacity(requested.len());
+        let mut used = Vec::with_capacity(requested.len());
         for (k, &v) in requested.iter().enumerate() {
             self.settings
                 .check_cancelled(&format!("view {}", self.rig.cameras[v].name))?;
-            views.push(self.run(v, &mut seconds, &mut log.warnings)?);
+            let prior = priors.and_then(|p| p.get(v).cloned().flatten());
+            let (view, prior) = self.run(v, prior, &mut seconds, &mut log.warnings)?;
+            views.push(view);
+            used.push(prior);
             progress(Stage::Views, k + 1, requested.len());
         }
         let names = std::iter::once("warping").chain(names);
         for (name, seconds) in names.zip(seconds) {
             log.timings.push((name.to_string(), seconds));
         }
-        Ok(views)
+        Ok((views, used))
     }
 
     /// Reconstructs camera `v`'s view; `seconds[0]` gathers the warp's time and
@@ -81,9 +89,10 @@ impl<'a> ViewPass<'a> {
     pub fn run(
         &self,
         v: usize,
+        prior: Option<CarriedPrior>,
         seconds: &mut [f64],
         warnings: &mut Vec<String>,
-    ) -> Result<ReconstructedView> {
+    ) -> Result<(ReconstructedView, Option<CarriedPrior>)> {
         let start = Instant::now();
         let Gathered {
             measurements,
@@ -109,6 +118,7 @@ impl<'a> ViewPass<'a> {
             false => None,
         };
         let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
+        solve.prior = prior;
         self.plan.run(&mut solve, &mut seconds[1..])?;
         let cam = &self.rig.cameras[v];
         let agreement = self.registered.agreement[v];
@@ -128,7 +138,7 @@ impl<'a> ViewPass<'a> {
                 100.0 * agreement
             ));
         }
-        Ok(ReconstructedView {
+        let view = ReconstructedView {
             name: cam.name.clone(),
             reflectance: Image::new(w, h, solve.knots.len(), solve.spectra)?,
             disparity: self.registered.disparities[v].clone(),
@@ -139,6 +149,7 @@ impl<'a> ViewPass<'a> {
             moved_to_planes: self.registered.moved_to_planes.as_ref().map(|m| m[v]),
             registered,
             pair_agreements: self.registered.pair_agreements[v].clone(),
-        })
+        };
+        Ok((view, solve.prior))
     }
 }

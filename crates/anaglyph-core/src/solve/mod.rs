@@ -35,7 +35,7 @@ pub use inconsistent::{keep_own_where_inconsistent, InconsistentPixels};
 pub use reported_bands::ReportedBands;
 pub use residuals::{measurement_residuals, median_of_complete};
 pub use scene_prior::{
-    fill_view, ScenePrior, ScenePriorReport, ScenePriorSettings, ScenePriorStage,
+    fill_view, CarriedPrior, ScenePrior, ScenePriorReport, ScenePriorSettings, ScenePriorStage,
 };
 
 use crate::demux::{DemuxOptions, DemuxReport};
@@ -193,6 +193,9 @@ pub struct ViewSolve<'a> {
     pub residuals: Option<Vec<f32>>,
     /// Per-pixel weights of the guided filter (None: every pixel weighs the same).
     pub weights: Option<Vec<f32>>,
+    /// The view's scene prior: on entry the previous frame's of a sequence (temporal
+    /// reuse; None: learn it), after the solve the one the scene prior stage used.
+    pub prior: Option<CarriedPrior>,
     pub report: SolveReport,
 }
 
@@ -225,6 +228,7 @@ impl<'a> ViewSolve<'a> {
             spectra: Vec::new(),
             residuals: None,
             weights: None,
+            prior: None,
             report: SolveReport::default(),
         }
     }

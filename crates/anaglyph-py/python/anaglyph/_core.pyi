@@ -199,7 +199,13 @@ def reconstruct(
     arrays: bool = True,
     skip_done: bool = False,
     create_only: bool = False,
+    reuse: bool = True,
+    previous: FrameCarry | None = None,
 ) -> dict[str, Any]: ...
+@final
+class FrameCarry:
+    """What one frame of a sequence hands to the next (opaque)."""
+
 def read_capture(path: _Path) -> npt.NDArray[np.uint8] | npt.NDArray[np.uint16]: ...
 def discover_frames(
     rig: Rig, folder: _Path, layout: str | None = None, frames: str = "all"

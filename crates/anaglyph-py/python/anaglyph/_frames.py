@@ -32,13 +32,16 @@ logger = logging.getLogger("anaglyph")
 class FrameReport:
     """What one frame's run did: its ``frame`` number, the ``seconds`` it took (the whole
     call), ``store_seconds`` spent writing it, whether it was ``skipped`` (already in the
-    store) and its ``warnings``."""
+    store), its ``warnings`` and what it ``reuse``\ d of the previous frame (the manifest's
+    ``temporal_reuse``: ``cut``, ``narrowed_range``, ``range_fallback``,
+    ``priors_carried``, ...; None when skipped)."""
 
     frame: int
     seconds: float
     store_seconds: float = 0.0
     skipped: bool = False
     warnings: list[str] = field(default_factory=list)
+    reuse: dict[str, Any] | None = None
 
 
 @dataclass
@@ -190,6 +193,7 @@ def reconstruct_frames(
     white_reflectance: float | None = None,
     saturation: float | None = None,
     tuning: Mapping[str, Any] | None = None,
+    reuse: bool | int = True,
     progress: bool | Progress = True,
 ) -> SequenceRun | dict[int, Reconstruction]:
     """Reconstructs every frame of a sequence, in frame order, with :func:`reconstruct`'s
@@ -208,6 +212,16 @@ def reconstruct_frames(
     completed (frames already written are skipped); a store of another run is refused
     unless ``overwrite``; a folder that is not an anaglyph store is never replaced.
     Without ``store``: a dict of frame number -> :class:`Reconstruction`.
+
+    With ``reuse`` (the default) each frame starts from what the previous frame learned
+    where that is sound: the search range narrowed to the previous disparities (searched
+    again in full where surfaces left it) and each view's scene prior (learned again where
+    a new material appears); a cut (another scene) falls back to a frame reconstructed
+    alone. ``reuse=N`` starts a new chain every N frames of the run (as each task of
+    :func:`anaglyph.dask.reconstruct_frames` with ``batch=N`` does, whose bytes it then
+    gives); ``False`` reconstructs every frame alone. A resumed store starts a chain at
+    the first frame it computes. Each frame's manifest says what it reused
+    (``temporal_reuse``).
 
     >>> run = anaglyph.reconstruct_frames(rig, {0: cap0, 1: cap1}, store="clip.zarr")  # doctest: +SKIP
     >>> xarray.open_zarr("clip.zarr")["reflectance"].dims                              # doctest: +SKIP
@@ -233,7 +247,11 @@ def reconstruct_frames(
         white_reflectance=white_reflectance,
         saturation=saturation,
         tuning=tuning,
+        reuse=reuse is not False and reuse != 0,
     )
+    chain = 0 if isinstance(reuse, bool) else int(reuse)
+    if chain < 0:
+        raise _core.SettingError(f"reuse is {reuse} (expected True, False or a chain length >= 1)")
     numbers = [n for n, _ in numbered]
     bar = None
     callback = progress if callable(progress) else None
@@ -243,9 +261,12 @@ def reconstruct_frames(
         bar = tqdm(total=len(numbered), desc="anaglyph", unit="frame")
     reports: list[FrameReport] = []
     results: dict[int, Reconstruction] = {}
+    carry = None  # what the last frame computed hands to the next
     try:
-        for number, captures in numbered:
+        for index, (number, captures) in enumerate(numbered):
             started = time.perf_counter()
+            if chain and index % chain == 0:
+                carry = None
             if bar is not None:
                 bar.set_postfix_str(f"frame {number}", refresh=True)
             if isinstance(captures, _LazyFrame):
@@ -260,9 +281,11 @@ def reconstruct_frames(
                 overwrite=overwrite and not reports,
                 arrays=store is None,
                 skip_done=store is not None,
+                previous=carry,
                 **options,
             )
             seconds = time.perf_counter() - started
+            carry = out.get("carry")  # None after a skipped frame: nothing to carry over it
             if out["skipped"]:
                 reports.append(FrameReport(frame=number, seconds=seconds, skipped=True))
             else:
@@ -274,6 +297,7 @@ def reconstruct_frames(
                         seconds=seconds,
                         store_seconds=float(out["manifest"].get("store_seconds", 0.0)),
                         warnings=list(out["warnings"]),
+                        reuse=out["manifest"].get("temporal_reuse"),
                     )
                 )
                 if store is None:

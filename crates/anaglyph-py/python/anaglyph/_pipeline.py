@@ -270,9 +270,10 @@ def _core_options(
     white_reflectance: float | None = None,
     saturation: float | None = None,
     tuning: Mapping[str, Any] | None = None,
+    reuse: bool = True,
 ) -> dict[str, Any]:
     """The keyword arguments of ``_core.reconstruct`` for :func:`reconstruct`'s options
-    (with its defaults)."""
+    (with its defaults) and a sequence's ``reuse``."""
     search: Any = disp_range
     if not (isinstance(disp_range, str) and disp_range == "auto"):
         search = _disparity_range(disp_range)
@@ -295,6 +296,7 @@ def _core_options(
         white_reflectance=white_reflectance,
         saturation=saturation,
         tuning=json.dumps(dict(tuning)) if tuning is not None else None,
+        reuse=bool(reuse),
     )
 
 

@@ -33,6 +33,12 @@ from ._frames import FrameReport, SequenceRun, _check_frames, _LazyFrame, _numbe
 from ._pipeline import PathLike, _captures, _core_options, _rig
 
 
+def _read(captures: dict[str, Any]) -> dict[str, Any]:
+    """A frame's captures, read where they travelled as paths (a folder's frames: the
+    worker reads them from the shared filesystem)."""
+    return {name: _core.read_capture(v) if isinstance(v, str) else v for name, v in captures.items()}
+
+
 def _run_batch(
     batch: list[tuple[int, dict[str, np.ndarray]]],
     rig: Rig,
@@ -50,22 +56,37 @@ def _run_batch(
     except ValueError:  # not on a worker (a synchronous scheduler): keep the default
         pass
     reports = []
+    # Temporal reuse chains the batch's frames from its first, so a batch that a lost
+    # worker left half written is computed again from its first frame (rewriting the
+    # same bytes), not resumed in the middle of its chain.
+    recompute = False
+    if options.get("reuse", True):
+        probe = _core.reconstruct(
+            rig,
+            _read(batch[0][1]),
+            store=store,
+            frame=batch[0][0],
+            frames=numbers,
+            create_only=True,
+            **options,
+        )
+        done = dict(zip(numbers, probe["frames_done"]))
+        recompute = not all(done[number] for number, _ in batch)
+    carry = None
     for number, captures in batch:
         started = time.perf_counter()
-        # Frames of a folder travel as paths: the worker reads them (shared filesystem).
-        captures = {
-            name: _core.read_capture(v) if isinstance(v, str) else v for name, v in captures.items()
-        }
         out = _core.reconstruct(
             rig,
-            captures,
+            _read(captures),
             store=store,
             frame=number,
             frames=numbers,
             arrays=False,
-            skip_done=True,
+            skip_done=not recompute,
+            previous=carry,
             **options,
         )
+        carry = out.get("carry")
         reports.append(
             {
                 "frame": number,
@@ -73,6 +94,7 @@ def _run_batch(
                 "store_seconds": float(out.get("manifest", {}).get("store_seconds", 0.0)),
                 "skipped": bool(out["skipped"]),
                 "warnings": list(out.get("warnings", [])),
+                "reuse": out.get("manifest", {}).get("temporal_reuse"),
             }
         )
     return reports
@@ -91,8 +113,10 @@ def reconstruct_frames(
     """:func:`anaglyph.reconstruct_frames` into ``store`` on a Dask cluster: batches of
     ``batch`` consecutive frames as tasks of ``client`` (default: the current client).
     ``options`` are :func:`anaglyph.reconstruct`'s (``whites``, ``output``, ``preset``,
-    ...). ``store`` must be on a filesystem every worker sees. Returns the per-frame
-    reports in frame order; the bytes of the store are those of a serial run.
+    ...) and ``reuse``. ``store`` must be on a filesystem every worker sees. Returns the
+    per-frame reports in frame order. Temporal reuse chains the frames of each batch, so
+    the bytes of the store are those of a serial run with ``reuse=batch`` (or of any run
+    with ``reuse=False``); a task rerun after a lost worker writes the same bytes.
     """
     from distributed import get_client, wait
     from distributed import progress as dask_progress

@@ -344,6 +344,7 @@ impl ScenePrior {
             filled_pixels: filled,
             rejected_pixels: rejected,
             noise,
+            carried: false,
         })
     }
 }

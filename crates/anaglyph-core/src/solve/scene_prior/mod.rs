@@ -120,6 +120,21 @@ pub struct ScenePriorReport {
     pub rejected_pixels: usize,
     /// The measurement noise assumed, in reflectance units (rms per measurement).
     pub noise: f64,
+    /// The mixture was the previous frame's (a sequence's temporal reuse), not learned
+    /// from this view.
+    pub carried: bool,
+}
+
+impl ScenePriorReport {
+    /// The share of the under-measured pixels the prior left as they were.
+    pub fn rejected_share(&self) -> f64 {
+        let total = self.filled_pixels + self.rejected_pixels;
+        if total == 0 {
+            0.0
+        } else {
+            self.rejected_pixels as f64 / total as f64
+        }
+    }
 }
 
 /// The stage: learns the prior from the view's complete pixels and fills the
@@ -138,19 +153,29 @@ impl SolveStage for ScenePriorStage {
         true
     }
 
+    /// With a carried prior (a sequence's previous frame), fills with it unless it meets
+    /// a new material; else learns the prior. The prior used stays in `solve.prior` for
+    /// the next frame.
     fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()> {
         solve.check_full(self.name())?;
         let sensing = solve.context.sensing;
         let mut residuals = solve.residuals.take().unwrap_or_default();
-        let report = fill_view(
-            sensing,
-            &solve.measurements,
-            &mut solve.spectra,
-            &mut residuals,
-            &self.settings,
-        );
+        let (measurements, spectra) = (&solve.measurements, &mut solve.spectra);
+        let carried = match solve.prior.take() {
+            Some(prior) => {
+                fill_carried(&prior, sensing, measurements, spectra, &mut residuals, &self.settings)
+                    .map(|filled| filled.map(|report| (report, prior)))
+            }
+            None => Ok(None),
+        };
+        let filled = match carried {
+            Ok(None) => learn_and_fill(sensing, measurements, spectra, &mut residuals, &self.settings),
+            other => other,
+        };
         solve.residuals = Some(residuals);
-        solve.report.scene_prior = report?;
+        let filled = filled?;
+        solve.report.scene_prior = filled.as_ref().map(|(report, _)| *report);
+        solve.prior = filled.map(|(_, prior)| prior);
         Ok(())
     }
 }
@@ -177,6 +202,18 @@ pub fn fill_view(
     residuals: &mut Vec<f32>,
     settings: &ScenePriorSettings,
 ) -> Result<Option<ScenePriorReport>> {
+    let filled = learn_and_fill(sensing, measurements, spectra, residuals, settings)?;
+    Ok(filled.map(|(report, _)| report))
+}
+
+/// [`fill_view`], with the final mixture as the next frame of a sequence carries it.
+fn learn_and_fill(
+    sensing: &SensingMatrix,
+    measurements: &[f32],
+    spectra: &mut [f32],
+    residuals: &mut Vec<f32>,
+    settings: &ScenePriorSettings,
+) -> Result<Option<(ScenePriorReport, CarriedPrior)>> {
     let (rows, knots) = (sensing.rows(), sensing.cols());
     let Some(prior) = ScenePrior::learn(
         rows,
@@ -193,6 +230,7 @@ pub fn fill_view(
     // extended mixture rejects keeps the previous round's estimate.
     let mut report = prior.fill_incomplete(sensing, measurements, spectra, settings.noise_scale)?;
     *residuals = measurement_residuals(sensing, measurements, spectra)?;
+    let mut last = prior.clone();
     for _ in 0..settings.propagation_rounds {
         let Some(extension) = ScenePrior::learn_from(
             rows,
@@ -215,6 +253,52 @@ pub fn fill_view(
         report.samples = prior.samples;
         report.propagated_samples = added;
         *residuals = measurement_residuals(sensing, measurements, spectra)?;
+        last = extended;
     }
+    let carried = CarriedPrior {
+        mixture: last,
+        rejected: report.rejected_share(),
+    };
+    Ok(Some((report, carried)))
+}
+
+/// A view's scene prior as one frame of a sequence hands it to the next
+/// ([`crate::reconstruct::FrameCarry`]): the final mixture, and the share of the
+/// under-measured pixels it found implausible in the frame it was learned in.
+#[derive(Debug, Clone)]
+pub struct CarriedPrior {
+    mixture: ScenePrior,
+    rejected: f64,
+}
+
+/// A carried prior that finds more than `RELEARN_FACTOR` times (plus `RELEARN_SLACK`)
+/// the share of implausible pixels it found when it was learned meets a material it does
+/// not know, and the view learns its prior again.
+const RELEARN_FACTOR: f64 = 1.5;
+const RELEARN_SLACK: f64 = 0.01;
+
+/// Fills the under-measured pixels with `carried`'s mixture (one estimate, no learning,
+/// no propagation rounds: the mixture already holds the rounds' components). None, with
+/// the spectra and residuals as they came, when the mixture finds clearly more of the
+/// view's pixels implausible than when it was learned.
+fn fill_carried(
+    carried: &CarriedPrior,
+    sensing: &SensingMatrix,
+    measurements: &[f32],
+    spectra: &mut [f32],
+    residuals: &mut Vec<f32>,
+    settings: &ScenePriorSettings,
+) -> Result<Option<ScenePriorReport>> {
+    let before = spectra.to_vec();
+    let mut report =
+        carried
+            .mixture
+            .fill_incomplete(sensing, measurements, spectra, settings.noise_scale)?;
+    if report.rejected_share() > RELEARN_FACTOR * carried.rejected + RELEARN_SLACK {
+        spectra.copy_from_slice(&before);
+        return Ok(None);
+    }
+    *residuals = measurement_residuals(sensing, measurements, spectra)?;
+    report.carried = true;
     Ok(Some(report))
 }
