@@ -57,7 +57,8 @@ def test_the_cluster_writes_the_bytes_of_a_serial_run(clip, client, tmp_path):
 
     rig, frames, whites = clip
     serial = tmp_path / "serial.zarr"
-    anaglyph.reconstruct_frames(rig, frames, store=serial, whites=whites, progress=False)
+    # Each task chains its batch's frames: a serial run of chains of 2.
+    anaglyph.reconstruct_frames(rig, frames, store=serial, whites=whites, reuse=2, progress=False)
     sharded = tmp_path / "sharded.zarr"
     run = anaglyph.dask.reconstruct_frames(
         rig, frames, sharded, client=client, batch=2, whites=whites, progress=False
@@ -77,14 +78,14 @@ def test_a_worker_killed_mid_run_ends_with_the_same_bytes(clip, client, tmp_path
 
     rig, frames, whites = clip
     serial = tmp_path / "serial.zarr"
-    anaglyph.reconstruct_frames(rig, frames, store=serial, whites=whites, progress=False)
+    anaglyph.reconstruct_frames(rig, frames, store=serial, whites=whites, reuse=2, progress=False)
     store = tmp_path / "killed.zarr"
     outcome: dict[str, object] = {}
 
     def run() -> None:
         try:
             outcome["run"] = anaglyph.dask.reconstruct_frames(
-                rig, frames, store, client=client, batch=1, whites=whites, progress=False
+                rig, frames, store, client=client, batch=2, whites=whites, progress=False
             )
         except BaseException as e:  # surfaced by the assertion below
             outcome["error"] = e
@@ -92,7 +93,8 @@ def test_a_worker_killed_mid_run_ends_with_the_same_bytes(clip, client, tmp_path
     thread = threading.Thread(target=run)
     thread.start()
     # Once the first frame is written, kill one worker's process outright (SIGKILL):
-    # its nanny starts a new one and the scheduler runs the lost batch again.
+    # its nanny starts a new one and the scheduler runs the lost batch again, from its
+    # first frame (the batch's frames chain their temporal reuse).
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         done = (store / "frame_done").exists() and zarr.open_group(store, mode="r")["frame_done"][...].sum()
@@ -144,7 +146,7 @@ def test_workers_read_the_frames_of_a_folder_themselves(cli, client, tmp_path):
     clip = anaglyph.read_frames(tmp_path / "clip", rig)
     whites = {c["name"]: anaglyph.read_capture(tmp_path / "sim0" / "white" / f"{c['name']}.png") for c in rig.cameras}
     serial = tmp_path / "serial.zarr"
-    anaglyph.reconstruct_frames(rig, clip, store=serial, whites=whites, progress=False)
+    anaglyph.reconstruct_frames(rig, clip, store=serial, whites=whites, reuse=1, progress=False)
     sharded = tmp_path / "sharded.zarr"
     anaglyph.dask.reconstruct_frames(rig, clip, sharded, client=client, batch=1, whites=whites, progress=False)
     expected, got = arrays(serial), arrays(sharded)

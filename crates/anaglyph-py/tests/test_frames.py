@@ -46,10 +46,11 @@ def test_a_sequence_goes_to_a_zarr_store_that_xarray_opens(clip, tmp_path):
     np.testing.assert_array_equal(ds["wavelength"].values, rig.wavelengths)
     assert ds["wavelength"].attrs["units"] == "nm"
     assert ds["visibility"].dtype == np.uint8
-    # Values are a single-frame run's, bit for bit.
-    one = anaglyph.reconstruct(rig, frames[11], whites=whites, output="both", progress=False)
+    # The first frame's values are a single-frame run's, bit for bit (the later frames
+    # start from what it learned).
+    one = anaglyph.reconstruct(rig, frames[10], whites=whites, output="both", progress=False)
     for name in ("r0c0", "r1c2"):
-        at = dict(frame=11, view=name)
+        at = dict(frame=10, view=name)
         assert bits(ds["reflectance"].sel(**at).values) == bits(one[name].cube)
         assert bits(ds["registered"].sel(**at).values) == bits(one[name].registered)
         assert bits(ds["disparity"].sel(**at).values) == bits(one[name].disparity)
@@ -65,6 +66,31 @@ def test_a_sequence_goes_to_a_zarr_store_that_xarray_opens(clip, tmp_path):
     with pytest.raises(anaglyph.OutputConflictError, match="another run"):
         anaglyph.reconstruct_frames(rig, frames, store=store, whites=whites, progress=False)
     assert xr.open_zarr(store)["frame_done"].values.tolist() == [1, 1, 1]
+
+
+def test_frames_reuse_what_the_previous_frame_learned(clip):
+    rig, frames, whites = clip
+    reused = anaglyph.reconstruct_frames(rig, frames, whites=whites, progress=False)
+    first, second = (reused[k].manifest["temporal_reuse"] for k in (10, 11))
+    assert first["previous"] is False and first["priors_learned"] == 8
+    assert second["previous"] is True and second["cut"] is False
+    assert second["correlation"] > 0.9
+    assert second["priors_carried"] + second["priors_learned"] == 8
+    assert second["narrowed_range"] is not None or second["range_fallback"] is False
+    # The same scene again: the reused frame's cube stays within noise of the frame alone.
+    alone = anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=False, progress=False)
+    one = anaglyph.reconstruct(rig, frames[11], whites=whites, progress=False)
+    assert bits(alone[11]["r0c0"].cube) == bits(one["r0c0"].cube)
+    assert one.manifest["temporal_reuse"]["previous"] is False
+    a, b = reused[11]["r0c0"].cube, one["r0c0"].cube
+    known = np.isfinite(a) & np.isfinite(b)
+    assert known.mean() > 0.8
+    assert np.sqrt(np.mean((a[known] - b[known]) ** 2)) < 0.02
+    # Chains of one frame reuse nothing.
+    chained = anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=1, progress=False)
+    assert bits(chained[11]["r0c0"].cube) == bits(one["r0c0"].cube)
+    with pytest.raises(anaglyph.SettingError, match="reuse"):
+        anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=-2, progress=False)
 
 
 def test_bad_sequences_are_refused_before_any_work(clip, tmp_path):

@@ -32,7 +32,7 @@ logger = logging.getLogger("anaglyph")
 class FrameReport:
     """What one frame's run did: its ``frame`` number, the ``seconds`` it took (the whole
     call), ``store_seconds`` spent writing it, whether it was ``skipped`` (already in the
-    store), its ``warnings`` and what it ``reuse``\ d of the previous frame (the manifest's
+    store), its ``warnings`` and what it reused of the previous frame (``reuse``, the manifest's
     ``temporal_reuse``: ``cut``, ``narrowed_range``, ``range_fallback``,
     ``priors_carried``, ...; None when skipped)."""
 
