@@ -76,10 +76,11 @@ def main() -> None:
         what = (
             "cut"
             if report.get("cut")
-            else "range {}, {} priors".format(
+            else "range {}, {} priors, {:.0f} % px".format(
                 "full" if report.get("range_fallback") or not report.get("narrowed_range")
                 else "{min}:{max}".format(**report["narrowed_range"]),
                 report.get("priors_carried", 0),
+                100 * report.get("reused_pixels", 0) / (len(rig.cameras) * width * height),
             )
             if report.get("previous")
             else "first"

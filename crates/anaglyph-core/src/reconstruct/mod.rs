@@ -38,6 +38,7 @@ mod reuse;
 mod settings;
 mod summary;
 mod view;
+mod view_reuse;
 
 pub use capture_checks::{check_signal, BLACK_LEVEL, CONSTANT_SPAN, UNUSABLE_FRACTION};
 pub use dark_level::Dark;
@@ -233,19 +234,20 @@ pub fn reconstruct_next(
     settings.check_cancelled("registration")?;
     let registered = register_array(rig, captures, &calibrated, settings, (reuse, &mut report), &mut log, progress)?;
     let pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
-    let priors = reuse.map(|r| r.carry.priors.as_slice());
-    let (views, used_priors) = pass.run_all(&requested, priors, &mut log, progress)?;
+    let carried_views = reuse.map(|r| r.carry.views.as_slice());
+    let (views, handed_on) = pass.run_all(&requested, carried_views, &mut log, progress)?;
     report.priors_carried = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| p.carried)).count();
     report.priors_learned = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| !p.carried)).count();
-    let mut carried_priors = vec![None; rig.cameras.len()];
-    for (&v, prior) in requested.iter().zip(used_priors) {
-        carried_priors[v] = prior;
+    report.reused_pixels = views.iter().map(|v| v.solve.reused_pixels).sum();
+    let mut carried_views = vec![None; rig.cameras.len()];
+    for (&v, view) in requested.iter().zip(handed_on) {
+        carried_views[v] = Some(view);
     }
     let carry = FrameCarry {
         greys,
         maps: registered.disparities.clone(),
         range: registered.whole_range,
-        priors: carried_priors,
+        views: carried_views,
     };
 
     let field = LightField {

@@ -29,7 +29,7 @@
 
 use crate::disparity::{DisparityMap, DisparityRange};
 use crate::image::GreyImage;
-use crate::solve::CarriedPrior;
+use super::view_reuse::CarriedView;
 use serde::Serialize;
 
 /// Side of the square blocks whose means the cut detection correlates, pixels.
@@ -57,9 +57,9 @@ pub struct FrameCarry {
     pub(super) maps: Vec<DisparityMap>,
     /// The whole range of the sequence (estimated or given); None: given disparities.
     pub(super) range: Option<DisparityRange>,
-    /// Per camera (rig order): its view's scene prior, when the view was reconstructed
-    /// with one.
-    pub(super) priors: Vec<Option<CarriedPrior>>,
+    /// Per camera (rig order): what its view's solve handed on, when the view was
+    /// reconstructed.
+    pub(super) views: Vec<Option<CarriedView>>,
 }
 
 /// What a frame may take from the previous one.
@@ -87,6 +87,9 @@ pub struct ReuseReport {
     pub priors_carried: usize,
     /// Views whose scene prior was learned in this frame.
     pub priors_learned: usize,
+    /// Pixels (summed over views) whose measurements had not changed and kept the
+    /// previous frame's spectra (the guided filter ran on every pixel).
+    pub reused_pixels: usize,
 }
 
 impl ReuseReport {
@@ -100,6 +103,7 @@ impl ReuseReport {
             range_fallback: false,
             priors_carried: 0,
             priors_learned: 0,
+            reused_pixels: 0,
         }
     }
 }
@@ -288,7 +292,7 @@ mod tests {
             greys: Vec::new(),
             maps,
             range: None,
-            priors: Vec::new(),
+            views: Vec::new(),
         }
     }
 

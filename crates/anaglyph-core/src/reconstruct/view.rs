@@ -11,7 +11,8 @@ use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
 use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
-use crate::solve::{CarriedPrior, SolveContext, SolvePlan, ViewSolve};
+use super::view_reuse::{scatter, select, CarriedView, PixelState};
+use crate::solve::{SolveContext, SolvePlan, ViewSolve};
 use crate::Result;
 use std::time::Instant;
 
@@ -55,15 +56,15 @@ impl<'a> ViewPass<'a> {
     /// Reconstructs the views of cameras `requested`, adding the warp's and each solve
     /// stage's seconds (summed over views) to `log`.
     ///
-    /// `priors` (per camera, rig order) are the previous frame's scene priors of a
-    /// sequence; returned with the views are the priors each view's solve used.
+    /// `carried` (per camera, rig order) is what the previous frame of a sequence handed
+    /// on ([`CarriedView`]); returned with the views is what each hands to the next.
     pub fn run_all(
         &self,
         requested: &[usize],
-        priors: Option<&[Option<CarriedPrior>]>,
+        carried: Option<&[Option<CarriedView>]>,
         log: &mut RunLog,
         progress: &Progress<'_>,
-    ) -> Result<(Vec<ReconstructedView>, Vec<Option<CarriedPrior>>)> {
+    ) -> Result<(Vec<ReconstructedView>, Vec<CarriedView>)> {
         let names = self.plan.names();
         let mut seconds = vec![0.0; names.len() + 1];
         let mut views = Vec::with_capacity(requested.len());
@@ -71,10 +72,10 @@ impl<'a> ViewPass<'a> {
         for (k, &v) in requested.iter().enumerate() {
             self.settings
                 .check_cancelled(&format!("view {}", self.rig.cameras[v].name))?;
-            let prior = priors.and_then(|p| p.get(v).cloned().flatten());
-            let (view, prior) = self.run(v, prior, &mut seconds, &mut log.warnings)?;
+            let previous = carried.and_then(|c| c.get(v).cloned().flatten());
+            let (view, next) = self.run(v, previous, &mut seconds, &mut log.warnings)?;
             views.push(view);
-            used.push(prior);
+            used.push(next);
             progress(Stage::Views, k + 1, requested.len());
         }
         let names = std::iter::once("warping").chain(names);
@@ -89,10 +90,10 @@ impl<'a> ViewPass<'a> {
     pub fn run(
         &self,
         v: usize,
-        prior: Option<CarriedPrior>,
+        previous: Option<CarriedView>,
         seconds: &mut [f64],
         warnings: &mut Vec<String>,
-    ) -> Result<(ReconstructedView, Option<CarriedPrior>)> {
+    ) -> Result<(ReconstructedView, CarriedView)> {
         let start = Instant::now();
         let Gathered {
             measurements,
@@ -117,9 +118,7 @@ impl<'a> ViewPass<'a> {
             }
             false => None,
         };
-        let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
-        solve.prior = prior;
-        self.plan.run(&mut solve, &mut seconds[1..])?;
+        let (solve, next) = self.solve(v, measurements, disputed, previous, &mut seconds[1..])?;
         let cam = &self.rig.cameras[v];
         let agreement = self.registered.agreement[v];
         if visibility.seen_by_all < LOW_VISIBILITY_WARNING && self.rig.cameras.len() > 1 {
@@ -150,6 +149,105 @@ impl<'a> ViewPass<'a> {
             registered,
             pair_agreements: self.registered.pair_agreements[v].clone(),
         };
-        Ok((view, solve.prior))
+        Ok((view, next))
+    }
+
+    /// View `v`'s solve: the per-pixel stages on the pixels that changed since the
+    /// previous frame (all of them without one; see `view_reuse.rs`), the others keeping
+    /// its spectra, then the spatial stages on the whole view. Returns the solve and what
+    /// it hands to the next frame.
+    fn solve(
+        &self,
+        v: usize,
+        measurements: Vec<f32>,
+        disputed: Vec<bool>,
+        previous: Option<CarriedView>,
+        seconds: &mut [f64],
+    ) -> Result<(ViewSolve<'_>, CarriedView)> {
+        let rows = self.context.sensing.rows();
+        let cameras = self.context.camera_rows.len();
+        let (prior, state) = previous.map_or((None, None), |p| (p.prior, p.pixels));
+        let unchanged = match (&prior, &state) {
+            (Some(_), Some(state)) => state.unchanged(&measurements, &disputed, rows),
+            _ => None,
+        };
+        if let (Some(unchanged), Some(state)) = (unchanged, state) {
+            let changed: Vec<bool> = unchanged.iter().map(|u| !u).collect();
+            let flags = if disputed.is_empty() { 0 } else { cameras };
+            let mut part = ViewSolve::new(
+                &self.context,
+                v,
+                select(&measurements, rows, &changed),
+                select(&disputed, flags, &changed),
+            );
+            part.prior = prior.clone();
+            part.statistics = state.statistics;
+            let mut part_seconds = vec![0.0; seconds.len()];
+            self.plan.run_per_pixel(&mut part, &mut part_seconds)?;
+            // A carried prior that met a new material was learned again from the
+            // changed pixels alone: solve the whole view instead.
+            let prior_held = part.report.scene_prior.is_none_or(|p| p.carried);
+            if prior_held && part.knots == state.knots {
+                seconds.iter_mut().zip(&part_seconds).for_each(|(s, p)| *s += p);
+                let width = part.knots.len();
+                let mut spectra = state.spectra;
+                scatter(&mut spectra, width, &changed, &part.spectra);
+                let weights = match (state.weights, &part.weights) {
+                    (Some(mut all), Some(some)) => {
+                        scatter(&mut all, 1, &changed, some);
+                        Some(all)
+                    }
+                    _ => None,
+                };
+                // Unchanged pixels keep the measurements their spectra came from.
+                let mut reference = state.measurements;
+                scatter(&mut reference, rows, &changed, &part.measurements);
+                let mut reference_flags = state.disputed;
+                scatter(&mut reference_flags, flags, &changed, &select(&disputed, flags, &changed));
+                let mut report = part.report;
+                report.reused_pixels = unchanged.iter().filter(|&&u| u).count();
+                let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
+                solve.knots = part.knots;
+                solve.spectra = spectra;
+                solve.weights = weights;
+                solve.prior = part.prior;
+                solve.statistics = part.statistics;
+                solve.report = report;
+                let next = PixelState {
+                    measurements: reference,
+                    disputed: reference_flags,
+                    spectra: solve.spectra.clone(),
+                    weights: solve.weights.clone(),
+                    knots: solve.knots.clone(),
+                    statistics: solve.statistics,
+                };
+                self.plan.run_spatial(&mut solve, seconds)?;
+                let carried = CarriedView {
+                    prior: solve.prior.clone(),
+                    pixels: Some(next),
+                };
+                return Ok((solve, carried));
+            }
+        }
+        let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
+        solve.prior = prior;
+        self.plan.run_per_pixel(&mut solve, seconds)?;
+        // Pixels are reused only under a scene prior's mixture: it is what lets a part of
+        // the view be solved alone (a new material among the changed pixels is caught by
+        // the carried prior's own check).
+        let next = solve.prior.as_ref().map(|_| PixelState {
+            measurements: solve.measurements.clone(),
+            disputed: solve.disputed.clone(),
+            spectra: solve.spectra.clone(),
+            weights: solve.weights.clone(),
+            knots: solve.knots.clone(),
+            statistics: solve.statistics,
+        });
+        self.plan.run_spatial(&mut solve, seconds)?;
+        let carried = CarriedView {
+            prior: solve.prior.clone(),
+            pixels: next,
+        };
+        Ok((solve, carried))
     }
 }

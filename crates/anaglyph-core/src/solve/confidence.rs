@@ -25,8 +25,10 @@ impl SolveStage for Confidence {
     }
 
     fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()> {
+        let given = solve.statistics.confidence_median;
         let residuals = solve.residuals_mut(self.name())?;
-        let (weights, median) = confidence_weights(residuals, self.scale)?;
+        let (weights, median) = weights_against(residuals, self.scale, given)?;
+        solve.statistics.confidence_median = Some(median);
         solve.weights = Some(weights);
         solve.report.median_residual = Some(median);
         Ok(())
@@ -36,6 +38,11 @@ impl SolveStage for Confidence {
 /// Confidence weights `1 / (1 + (ρ / σ)²)` with `σ = scale × median ρ` (0 where ρ is not
 /// finite), and that median.
 pub fn confidence_weights(residuals: &[f32], scale: f64) -> Result<(Vec<f32>, f64)> {
+    weights_against(residuals, scale, None)
+}
+
+/// [`confidence_weights`] against a `given` median residual (None: the residuals' own).
+fn weights_against(residuals: &[f32], scale: f64, given: Option<f64>) -> Result<(Vec<f32>, f64)> {
     if !(scale > 0.0) || !scale.is_finite() {
         return Err(Error::OutOfRange {
             setting: "refinement confidence".into(),
@@ -43,12 +50,15 @@ pub fn confidence_weights(residuals: &[f32], scale: f64) -> Result<(Vec<f32>, f6
             expected: "a finite value > 0".into(),
         });
     }
-    let mut finite: Vec<f32> = residuals
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    let Some(median) = median(&mut finite).map(f64::from) else {
+    let median = given.or_else(|| {
+        let mut finite: Vec<f32> = residuals
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
+        median(&mut finite).map(f64::from)
+    });
+    let Some(median) = median.filter(|m| m.is_finite()) else {
         return Ok((vec![0.0; residuals.len()], f64::NAN));
     };
     // A noise-free view can fit exactly: keep σ above rounding.

@@ -76,6 +76,12 @@ pub fn revert_disputed(solve: &mut ViewSolve<'_>, tolerance: f64) -> Result<Disp
             expected: vec![pixels, cameras],
         });
     }
+    let residuals = solve.residuals.as_deref().unwrap_or_default();
+    let floor = match solve.statistics.disputed_floor {
+        Some(floor) => floor,
+        None => median_of_complete(residuals, &solve.measurements, rows).unwrap_or(0.0),
+    };
+    solve.statistics.disputed_floor = Some(floor);
     let flags = |px: usize| &solve.disputed[px * cameras..(px + 1) * cameras];
     let candidates: Vec<usize> = (0..pixels)
         .filter(|&px| flags(px).iter().any(|&f| f))
@@ -86,8 +92,6 @@ pub fn revert_disputed(solve: &mut ViewSolve<'_>, tolerance: f64) -> Result<Disp
             dropped: 0,
         });
     }
-    let residuals = solve.residuals.as_deref().unwrap_or_default();
-    let floor = median_of_complete(residuals, &solve.measurements, rows).unwrap_or(0.0);
     let mut undisputed = Vec::with_capacity(candidates.len() * rows);
     for &px in &candidates {
         let start = undisputed.len();

@@ -23,6 +23,10 @@ impl SolveStage for GuidedRefinementStage {
         false
     }
 
+    fn spatial(&self) -> bool {
+        true
+    }
+
     fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()> {
         let context = solve.context;
         let rows = context.camera_rows[solve.camera].clone();

@@ -58,7 +58,12 @@ pub fn keep_own_where_inconsistent(solve: &mut ViewSolve<'_>, factor: f64) -> Re
     let knots = solve.knots.len();
     let own = context.camera_rows[solve.camera].clone();
     let residuals = solve.residuals.as_deref().unwrap_or_default();
-    let Some(median) = median_of_complete(residuals, &solve.measurements, rows) else {
+    let median = solve
+        .statistics
+        .inconsistent_median
+        .or_else(|| median_of_complete(residuals, &solve.measurements, rows));
+    solve.statistics.inconsistent_median = median;
+    let Some(median) = median else {
         return Ok(0);
     };
     let limit = factor as f32 * median;

@@ -196,7 +196,25 @@ pub struct ViewSolve<'a> {
     /// The view's scene prior: on entry the previous frame's of a sequence (temporal
     /// reuse; None: learn it), after the solve the one the scene prior stage used.
     pub prior: Option<CarriedPrior>,
+    /// The view-wide yardsticks of the per-pixel stages: None fields are computed from
+    /// these pixels (and recorded), given ones are used as they are.
+    pub statistics: ViewStatistics,
     pub report: SolveReport,
+}
+
+/// The view-wide statistics the per-pixel stages compare each pixel with: computed from
+/// the whole view, or carried from the frame that last solved the whole view when a
+/// sequence solves only the pixels that changed (temporal reuse), so that those pixels
+/// meet the same yardsticks as a whole view's.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ViewStatistics {
+    /// [`DisputedMeasurements`]' floor: the complete pixels' median residual after
+    /// demultiplexing.
+    pub disputed_floor: Option<f32>,
+    /// [`InconsistentPixels`]' median residual of the complete pixels.
+    pub inconsistent_median: Option<f32>,
+    /// [`Confidence`]'s median residual.
+    pub confidence_median: Option<f64>,
 }
 
 /// What the stages did to a view.
@@ -209,6 +227,9 @@ pub struct SolveReport {
     pub scene_prior: Option<ScenePriorReport>,
     /// Median residual of the view's pixels after the scene prior, reflectance units.
     pub median_residual: Option<f64>,
+    /// Pixels whose measurements had not changed since the previous frame of a sequence
+    /// and kept its spectra (temporal reuse); the other counts are of the rest.
+    pub reused_pixels: usize,
 }
 
 impl<'a> ViewSolve<'a> {
@@ -229,6 +250,7 @@ impl<'a> ViewSolve<'a> {
             residuals: None,
             weights: None,
             prior: None,
+            statistics: ViewStatistics::default(),
             report: SolveReport::default(),
         }
     }
@@ -247,6 +269,12 @@ pub trait SolveStage: std::fmt::Debug + Send + Sync {
     fn name(&self) -> &'static str;
     /// Whether it reads the spectra on every knot of C and their residuals.
     fn needs_residuals(&self) -> bool;
+    /// Whether a pixel's result depends on its neighbours' (such stages come last; the
+    /// others' results at a pixel depend on that pixel's measurements and the view's
+    /// [`ViewStatistics`] alone).
+    fn spatial(&self) -> bool {
+        false
+    }
     fn run(&self, solve: &mut ViewSolve<'_>) -> Result<()>;
 }
 
@@ -290,10 +318,28 @@ impl SolvePlan {
     /// Runs every stage on `solve`, adding each one's seconds to `seconds` (same order
     /// as [`SolvePlan::names`]).
     pub fn run(&self, solve: &mut ViewSolve<'_>, seconds: &mut [f64]) -> Result<()> {
+        self.run_per_pixel(solve, seconds)?;
+        self.run_spatial(solve, seconds)
+    }
+
+    /// Runs the stages whose result at a pixel depends on that pixel alone (all but the
+    /// last, spatial ones; `seconds` as for [`SolvePlan::run`]).
+    pub fn run_per_pixel(&self, solve: &mut ViewSolve<'_>, seconds: &mut [f64]) -> Result<()> {
+        self.run_where(solve, seconds, false)
+    }
+
+    /// Runs the spatial stages (after [`SolvePlan::run_per_pixel`]).
+    pub fn run_spatial(&self, solve: &mut ViewSolve<'_>, seconds: &mut [f64]) -> Result<()> {
+        self.run_where(solve, seconds, true)
+    }
+
+    fn run_where(&self, solve: &mut ViewSolve<'_>, seconds: &mut [f64], spatial: bool) -> Result<()> {
         for (stage, total) in self.stages.iter().zip(seconds) {
-            let start = Instant::now();
-            stage.run(solve)?;
-            *total += start.elapsed().as_secs_f64();
+            if stage.spatial() == spatial {
+                let start = Instant::now();
+                stage.run(solve)?;
+                *total += start.elapsed().as_secs_f64();
+            }
         }
         Ok(())
     }
