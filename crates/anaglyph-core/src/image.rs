@@ -72,6 +72,27 @@ impl<T: Clone> Image<T> {
 pub type GreyImage = Image<f32>;
 
 impl<T: Copy> Image<T> {
+    /// The pixels of columns `xs` and rows `ys`, as an image of their own.
+    pub fn crop(&self, xs: std::ops::Range<usize>, ys: std::ops::Range<usize>) -> Result<Self> {
+        if xs.start >= xs.end || ys.start >= ys.end || xs.end > self.width || ys.end > self.height {
+            return Err(Error::raster(
+                "crop",
+                format!("columns {xs:?} and rows {ys:?}"),
+                format!("non-empty ranges within {}x{}", self.width, self.height),
+            ));
+        }
+        let c = self.channels;
+        let data = ys
+            .clone()
+            .flat_map(|y| {
+                self.data[(y * self.width + xs.start) * c..(y * self.width + xs.end) * c]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        Image::new(xs.len(), ys.len(), c, data)
+    }
+
     /// The value at (x, y) of a one-channel image.
     pub fn at(&self, x: usize, y: usize) -> T {
         debug_assert_eq!(self.channels, 1, "at() reads one-channel images");

@@ -11,9 +11,9 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
 use anaglyph_core::io::{read_linear_image, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct_next, ArrayCaptures, FrameCarry as CoreFrameCarry, CameraCapture, Dark, DisparitySearch,
-    FrameLayout, FrameRange, FrameSequence, Preset, Products, ReconstructOptions, SolveTuning,
-    Stage,
+    reconstruct_next, ArrayCaptures, CameraCapture, Dark, DisparitySearch,
+    FrameCarry as CoreFrameCarry, FrameLayout, FrameRange, FrameSequence, Preset, Products,
+    ReconstructOptions, SolveTuning, Stage,
 };
 use anaglyph_core::rectify::{Calibration, Homography};
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
@@ -318,7 +318,9 @@ pub fn reconstruct<'py>(
             None => None,
         };
         let computing = std::time::Instant::now();
-        let previous = previous.filter(|_| options.temporal_reuse).map(|p| &p.inner);
+        let previous = previous
+            .filter(|_| options.temporal_reuse)
+            .map(|p| &p.inner);
         let (field, carry) = reconstruct_next(rig, &captures, &settings, &report, previous)?;
         let writing = std::time::Instant::now();
         if let Some(store) = &store {

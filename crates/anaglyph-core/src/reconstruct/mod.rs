@@ -52,11 +52,11 @@ pub use options::{ReconstructOptions, SolveTuning};
 pub use output::{write_light_field, OutputOptions, Products};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
+pub use reuse::{block_correlation, FrameCarry, ReuseReport};
 pub use settings::{
     Disparities, DisparitySearch, PipelineSettings, Preset, DEFAULT_MAX_DISP,
     DEFAULT_SATURATION_LEVEL, DEFAULT_WHITE_REFLECTANCE,
 };
-pub use reuse::{block_correlation, FrameCarry, ReuseReport};
 pub use summary::ViewSummary;
 
 use crate::disparity::DisparityMap;
@@ -232,12 +232,37 @@ pub fn reconstruct_next(
     let cut = previous.is_some() && reuse.is_none();
     let mut report = ReuseReport::fresh(previous.is_some(), cut, correlation);
     settings.check_cancelled("registration")?;
-    let registered = register_array(rig, captures, &calibrated, settings, (reuse, &mut report), &mut log, progress)?;
-    let pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
+    let registered = register_array(
+        rig,
+        captures,
+        &calibrated,
+        settings,
+        (reuse, &mut report),
+        &mut log,
+        progress,
+    )?;
+    // Where each camera's capture moved since the references the previous frame kept;
+    // the references follow the captures where they moved.
+    let now: Vec<&Image<f32>> = calibrated.views.iter().map(|v| &v.image).collect();
+    let (changes, references) = match reuse {
+        Some(r) => {
+            let (changes, references) = r.carry.camera_changes(&now);
+            (changes, references)
+        }
+        None => (None, now.iter().map(|&i| i.clone()).collect()),
+    };
+    let mut pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
+    pass.changes = changes.as_ref();
     let carried_views = reuse.map(|r| r.carry.views.as_slice());
     let (views, handed_on) = pass.run_all(&requested, carried_views, &mut log, progress)?;
-    report.priors_carried = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| p.carried)).count();
-    report.priors_learned = views.iter().filter(|v| v.solve.scene_prior.is_some_and(|p| !p.carried)).count();
+    report.priors_carried = views
+        .iter()
+        .filter(|v| v.solve.scene_prior.is_some_and(|p| p.carried))
+        .count();
+    report.priors_learned = views
+        .iter()
+        .filter(|v| v.solve.scene_prior.is_some_and(|p| !p.carried))
+        .count();
     report.reused_pixels = views.iter().map(|v| v.solve.reused_pixels).sum();
     let mut carried_views = vec![None; rig.cameras.len()];
     for (&v, view) in requested.iter().zip(handed_on) {
@@ -245,6 +270,7 @@ pub fn reconstruct_next(
     }
     let carry = FrameCarry {
         greys,
+        references,
         maps: registered.disparities.clone(),
         range: registered.whole_range,
         views: carried_views,

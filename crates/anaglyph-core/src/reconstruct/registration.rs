@@ -118,9 +118,12 @@ fn estimate_maps(
     };
     let narrowed = reuse.and_then(|r| r.carry.narrowed(whole));
     let register = |range: DisparityRange| {
-        register_views(&images, geometry, &settings.registration_over(range), &|done, total| {
-            progress(Stage::Registration, done, total)
-        })
+        register_views(
+            &images,
+            geometry,
+            &settings.registration_over(range),
+            &|done, total| progress(Stage::Registration, done, total),
+        )
     };
     let mut registration = register(narrowed.unwrap_or(whole))?;
     if let Some(narrowed) = narrowed {

@@ -27,9 +27,10 @@
 //! In: the previous frame's [`FrameCarry`], this frame's grey images. Out: a [`Reuse`]
 //! decision and, after the frame, its own carry; [`ReuseReport`] records what was reused.
 
+use super::view_reuse::{dilated, moved_pixels, CameraChanges, CarriedView, WARP_REACH};
 use crate::disparity::{DisparityMap, DisparityRange};
 use crate::image::GreyImage;
-use super::view_reuse::CarriedView;
+use crate::image::Image;
 use serde::Serialize;
 
 /// Side of the square blocks whose means the cut detection correlates, pixels.
@@ -54,6 +55,9 @@ pub const AT_END_FRACTION: f64 = 0.01;
 #[derive(Debug, Clone)]
 pub struct FrameCarry {
     pub(super) greys: Vec<GreyImage>,
+    /// Per camera, its calibrated capture as the kept spectra saw it (pixel by pixel,
+    /// the frame each pixel last moved in).
+    pub(super) references: Vec<Image<f32>>,
     pub(super) maps: Vec<DisparityMap>,
     /// The whole range of the sequence (estimated or given); None: given disparities.
     pub(super) range: Option<DisparityRange>,
@@ -113,9 +117,10 @@ impl FrameCarry {
     /// least correlation of a camera's block means (None: another shape).
     pub(super) fn judge<'a>(&'a self, greys: &[GreyImage]) -> (Option<Reuse<'a>>, Option<f64>) {
         let same_shape = greys.len() == self.greys.len()
-            && greys.iter().zip(&self.greys).all(|(a, b)| {
-                (a.width, a.height, a.channels) == (b.width, b.height, b.channels)
-            });
+            && greys
+                .iter()
+                .zip(&self.greys)
+                .all(|(a, b)| (a.width, a.height, a.channels) == (b.width, b.height, b.channels));
         if !same_shape {
             return (None, None);
         }
@@ -126,6 +131,42 @@ impl FrameCarry {
             .fold(1.0, f64::min);
         let reuse = (correlation >= CUT_CORRELATION).then_some(Reuse { carry: self });
         (reuse, Some(correlation))
+    }
+
+    /// Where each camera's capture `now` moved against the carried references (dilated
+    /// by the warp's reach; None when the shapes differ), and the references for the next
+    /// frame: `now` where it moved, the carried ones elsewhere.
+    pub(super) fn camera_changes(
+        &self,
+        now: &[&Image<f32>],
+    ) -> (Option<CameraChanges>, Vec<Image<f32>>) {
+        let same = now.len() == self.references.len()
+            && now
+                .iter()
+                .zip(&self.references)
+                .all(|(a, b)| (a.width, a.height, a.channels) == (b.width, b.height, b.channels));
+        if !same || now.is_empty() {
+            return (None, now.iter().map(|&i| i.clone()).collect());
+        }
+        let (w, h) = (now[0].width, now[0].height);
+        let mut references = Vec::with_capacity(now.len());
+        let mut moved = Vec::with_capacity(now.len());
+        for (&image, reference) in now.iter().zip(&self.references) {
+            let here = moved_pixels(reference, image);
+            let mut next = reference.clone();
+            let c = image.channels;
+            for (px, _) in here.iter().enumerate().filter(|(_, &m)| m) {
+                next.data[px * c..(px + 1) * c].copy_from_slice(&image.data[px * c..(px + 1) * c]);
+            }
+            references.push(next);
+            moved.push(dilated(&here, w, h, WARP_REACH));
+        }
+        let changes = CameraChanges {
+            width: w,
+            height: h,
+            moved,
+        };
+        (Some(changes), references)
     }
 
     /// The range a frame after this one searches: the carried maps' disparities (less
@@ -171,9 +212,7 @@ pub(super) fn at_narrowed_ends(
         let at_end = map
             .data
             .iter()
-            .filter(|&&d| {
-                low.is_some_and(|l| d <= l + 0.5) || high.is_some_and(|h| d >= h - 0.5)
-            })
+            .filter(|&&d| low.is_some_and(|l| d <= l + 0.5) || high.is_some_and(|h| d >= h - 0.5))
             .count();
         at_end as f64 > AT_END_FRACTION * map.data.len() as f64
     })
@@ -290,6 +329,7 @@ mod tests {
     fn carry(maps: Vec<DisparityMap>) -> FrameCarry {
         FrameCarry {
             greys: Vec::new(),
+            references: Vec::new(),
             maps,
             range: None,
             views: Vec::new(),
@@ -304,7 +344,9 @@ mod tests {
         // 20..=40 widened by a tenth of 100 px either side.
         assert_eq!(narrowed, DisparityRange::new(10, 51).unwrap());
         // Mostly unregistered maps say too little.
-        let sparse: Vec<f32> = (0..100).map(|i| if i < 30 { 5.0 } else { f32::NAN }).collect();
+        let sparse: Vec<f32> = (0..100)
+            .map(|i| if i < 30 { 5.0 } else { f32::NAN })
+            .collect();
         assert_eq!(carry(vec![map(sparse)]).narrowed(whole), None);
         // Maps spanning the whole range cannot narrow it.
         let wide: Vec<f32> = (0..1000).map(|i| -10.0 + 99.0 * i as f32 / 999.0).collect();

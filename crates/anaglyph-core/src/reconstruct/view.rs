@@ -5,14 +5,14 @@
 //! In: the calibrated array, its disparity maps, the solve's plan. Out: the view's
 //! reflectance cube, its reports and warnings.
 
+use super::view_reuse::{scatter, select, CameraChanges, CarriedView, PixelState, ViewNow};
 use super::{CalibratedArray, PipelineSettings, ReconstructedView, RegisteredArray};
 use super::{Progress, RunLog, Stage};
 use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
 use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
-use super::view_reuse::{scatter, select, CarriedView, PixelState};
-use crate::solve::{SolveContext, SolvePlan, ViewSolve};
+use crate::solve::{KeptPixels, SolveContext, SolvePlan, ViewSolve};
 use crate::Result;
 use std::time::Instant;
 
@@ -25,6 +25,9 @@ pub(super) struct ViewPass<'a> {
     pub geometry: ArrayGeometry,
     pub admission: Admission,
     pub settings: &'a PipelineSettings<'a>,
+    /// In a sequence's frame that is no cut: where each camera's capture moved since the
+    /// references the previous frame kept (temporal reuse).
+    pub changes: Option<&'a CameraChanges>,
 }
 
 impl<'a> ViewPass<'a> {
@@ -50,6 +53,7 @@ impl<'a> ViewPass<'a> {
                 None => Admission::SourceMaps,
             },
             settings,
+            changes: None,
         }
     }
 
@@ -166,20 +170,33 @@ impl<'a> ViewPass<'a> {
     ) -> Result<(ViewSolve<'_>, CarriedView)> {
         let rows = self.context.sensing.rows();
         let cameras = self.context.camera_rows.len();
+        let disparity = &self.registered.disparities[v].data;
         let (prior, state) = previous.map_or((None, None), |p| (p.prior, p.pixels));
-        let unchanged = match (&prior, &state) {
-            (Some(_), Some(state)) => state.unchanged(&measurements, &disputed, rows),
+        let unchanged = match (&prior, &state, self.changes) {
+            (Some(_), Some(state), Some(changes)) => {
+                let shifts: Vec<(f64, f64)> =
+                    (0..cameras).map(|k| self.geometry.shift(v, k)).collect();
+                state.unchanged(&ViewNow {
+                    measurements: &measurements,
+                    disputed: &disputed,
+                    rows,
+                    disparity,
+                    camera_rows: &self.context.camera_rows,
+                    shifts: &shifts,
+                    changes,
+                })
+            }
             _ => None,
         };
         if let (Some(unchanged), Some(state)) = (unchanged, state) {
             let changed: Vec<bool> = unchanged.iter().map(|u| !u).collect();
             let flags = if disputed.is_empty() { 0 } else { cameras };
-            let mut part = ViewSolve::new(
-                &self.context,
-                v,
+            let (gathered, gathered_flags) = (
                 select(&measurements, rows, &changed),
                 select(&disputed, flags, &changed),
             );
+            let mut part =
+                ViewSolve::new(&self.context, v, gathered.clone(), gathered_flags.clone());
             part.prior = prior.clone();
             part.statistics = state.statistics;
             let mut part_seconds = vec![0.0; seconds.len()];
@@ -188,7 +205,10 @@ impl<'a> ViewPass<'a> {
             // changed pixels alone: solve the whole view instead.
             let prior_held = part.report.scene_prior.is_none_or(|p| p.carried);
             if prior_held && part.knots == state.knots {
-                seconds.iter_mut().zip(&part_seconds).for_each(|(s, p)| *s += p);
+                seconds
+                    .iter_mut()
+                    .zip(&part_seconds)
+                    .for_each(|(s, p)| *s += p);
                 let width = part.knots.len();
                 let mut spectra = state.spectra;
                 scatter(&mut spectra, width, &changed, &part.spectra);
@@ -199,11 +219,19 @@ impl<'a> ViewPass<'a> {
                     }
                     _ => None,
                 };
-                // Unchanged pixels keep the measurements their spectra came from.
+                // Unchanged pixels keep what their spectra came from (the stages may
+                // mask measurements: the reference is what was gathered).
                 let mut reference = state.measurements;
-                scatter(&mut reference, rows, &changed, &part.measurements);
+                scatter(&mut reference, rows, &changed, &gathered);
                 let mut reference_flags = state.disputed;
-                scatter(&mut reference_flags, flags, &changed, &select(&disputed, flags, &changed));
+                scatter(&mut reference_flags, flags, &changed, &gathered_flags);
+                let mut reference_disparity = state.disparity;
+                scatter(
+                    &mut reference_disparity,
+                    1,
+                    &changed,
+                    &select(disparity, 1, &changed),
+                );
                 let mut report = part.report;
                 report.reused_pixels = unchanged.iter().filter(|&&u| u).count();
                 let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
@@ -213,15 +241,23 @@ impl<'a> ViewPass<'a> {
                 solve.prior = part.prior;
                 solve.statistics = part.statistics;
                 solve.report = report;
-                let next = PixelState {
+                let mut next = PixelState {
                     measurements: reference,
                     disputed: reference_flags,
+                    disparity: reference_disparity,
                     spectra: solve.spectra.clone(),
                     weights: solve.weights.clone(),
                     knots: solve.knots.clone(),
                     statistics: solve.statistics,
+                    refined: Vec::new(),
                 };
+                solve.kept = Some(KeptPixels {
+                    changed,
+                    refined: state.refined,
+                });
                 self.plan.run_spatial(&mut solve, seconds)?;
+                solve.kept = None;
+                next.refined = solve.spectra.clone();
                 let carried = CarriedView {
                     prior: solve.prior.clone(),
                     pixels: Some(next),
@@ -229,21 +265,31 @@ impl<'a> ViewPass<'a> {
                 return Ok((solve, carried));
             }
         }
+        // What the next frame compares with (the stages may mask measurements).
+        let gathered = (measurements.clone(), disputed.clone());
         let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
         solve.prior = prior;
         self.plan.run_per_pixel(&mut solve, seconds)?;
         // Pixels are reused only under a scene prior's mixture: it is what lets a part of
         // the view be solved alone (a new material among the changed pixels is caught by
         // the carried prior's own check).
-        let next = solve.prior.as_ref().map(|_| PixelState {
-            measurements: solve.measurements.clone(),
-            disputed: solve.disputed.clone(),
-            spectra: solve.spectra.clone(),
-            weights: solve.weights.clone(),
-            knots: solve.knots.clone(),
-            statistics: solve.statistics,
+        let mut next = solve.prior.as_ref().map(|_| {
+            let (measurements, disputed) = gathered;
+            PixelState {
+                measurements,
+                disputed,
+                disparity: disparity.clone(),
+                spectra: solve.spectra.clone(),
+                weights: solve.weights.clone(),
+                knots: solve.knots.clone(),
+                statistics: solve.statistics,
+                refined: Vec::new(),
+            }
         });
         self.plan.run_spatial(&mut solve, seconds)?;
+        if let Some(next) = &mut next {
+            next.refined = solve.spectra.clone();
+        }
         let carried = CarriedView {
             prior: solve.prior.clone(),
             pixels: next,

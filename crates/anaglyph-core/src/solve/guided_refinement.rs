@@ -5,7 +5,7 @@
 //! Out: the refined reflectance.
 
 use super::{SolveStage, ViewSolve};
-use crate::refine::{refine_view, GuidedRefinement};
+use crate::refine::{refine_view, refine_view_near, GuidedRefinement};
 use crate::Result;
 
 /// The stage: [`refine_view`] with the given settings.
@@ -31,13 +31,27 @@ impl SolveStage for GuidedRefinementStage {
         let context = solve.context;
         let rows = context.camera_rows[solve.camera].clone();
         let white_response: Vec<f64> = rows.map(|r| context.sensing.row(r).iter().sum()).collect();
-        refine_view(
-            &mut solve.spectra,
-            solve.knots.len(),
-            &context.views[solve.camera],
-            &white_response,
-            solve.weights.as_deref(),
-            self.refinement,
-        )
+        let view = &context.views[solve.camera];
+        match &solve.kept {
+            // A sequence's frame that kept most pixels: filter again only near the others.
+            Some(kept) if kept.refined.len() == solve.spectra.len() => refine_view_near(
+                &mut solve.spectra,
+                solve.knots.len(),
+                view,
+                &white_response,
+                solve.weights.as_deref(),
+                self.refinement,
+                &kept.changed,
+                &kept.refined,
+            ),
+            _ => refine_view(
+                &mut solve.spectra,
+                solve.knots.len(),
+                view,
+                &white_response,
+                solve.weights.as_deref(),
+                self.refinement,
+            ),
+        }
     }
 }

@@ -199,7 +199,20 @@ pub struct ViewSolve<'a> {
     /// The view-wide yardsticks of the per-pixel stages: None fields are computed from
     /// these pixels (and recorded), given ones are used as they are.
     pub statistics: ViewStatistics,
+    /// In a sequence, the pixels that kept the previous frame's spectra (temporal reuse):
+    /// the spatial stages compute again only near the others.
+    pub kept: Option<KeptPixels>,
     pub report: SolveReport,
+}
+
+/// Which pixels of a view were solved anew in a sequence's frame, and the spatial
+/// stages' output of the frame the others were kept from.
+#[derive(Debug, Clone)]
+pub struct KeptPixels {
+    /// Per pixel: solved anew (the others kept their spectra and weights).
+    pub changed: Vec<bool>,
+    /// The previous frame's output of the spatial stages, `pixels × knots`.
+    pub refined: Vec<f32>,
 }
 
 /// The view-wide statistics the per-pixel stages compare each pixel with: computed from
@@ -251,6 +264,7 @@ impl<'a> ViewSolve<'a> {
             weights: None,
             prior: None,
             statistics: ViewStatistics::default(),
+            kept: None,
             report: SolveReport::default(),
         }
     }
@@ -333,7 +347,12 @@ impl SolvePlan {
         self.run_where(solve, seconds, true)
     }
 
-    fn run_where(&self, solve: &mut ViewSolve<'_>, seconds: &mut [f64], spatial: bool) -> Result<()> {
+    fn run_where(
+        &self,
+        solve: &mut ViewSolve<'_>,
+        seconds: &mut [f64],
+        spatial: bool,
+    ) -> Result<()> {
         for (stage, total) in self.stages.iter().zip(seconds) {
             if stage.spatial() == spatial {
                 let start = Instant::now();

@@ -162,14 +162,25 @@ impl SolveStage for ScenePriorStage {
         let mut residuals = solve.residuals.take().unwrap_or_default();
         let (measurements, spectra) = (&solve.measurements, &mut solve.spectra);
         let carried = match solve.prior.take() {
-            Some(prior) => {
-                fill_carried(&prior, sensing, measurements, spectra, &mut residuals, &self.settings)
-                    .map(|filled| filled.map(|report| (report, prior)))
-            }
+            Some(prior) => fill_carried(
+                &prior,
+                sensing,
+                measurements,
+                spectra,
+                &mut residuals,
+                &self.settings,
+            )
+            .map(|filled| filled.map(|report| (report, prior))),
             None => Ok(None),
         };
         let filled = match carried {
-            Ok(None) => learn_and_fill(sensing, measurements, spectra, &mut residuals, &self.settings),
+            Ok(None) => learn_and_fill(
+                sensing,
+                measurements,
+                spectra,
+                &mut residuals,
+                &self.settings,
+            ),
             other => other,
         };
         solve.residuals = Some(residuals);
