@@ -15,9 +15,10 @@ SIZE = (96, 72)
 
 @pytest.fixture(scope="module")
 def clip():
-    """Three frames of the tabletop (different noise) through the paper's rig."""
+    """Three frames of the (still) tabletop through the paper's rig: new noise per frame,
+    the same exposures."""
     rig = small_rig("paper-2x4", SIZE[0])
-    sims = [anaglyph.simulate("tabletop", rig=rig, size=SIZE, seed=s) for s in range(3)]
+    sims = [anaglyph.simulate("tabletop", rig=rig, size=SIZE, seed=0, frame=k) for k in range(3)]
     frames = {10 + s: sim.captures for s, sim in enumerate(sims)}
     return rig, frames, sims[0].whites
 
@@ -77,15 +78,21 @@ def test_frames_reuse_what_the_previous_frame_learned(clip):
     assert second["correlation"] > 0.9
     assert second["priors_carried"] + second["priors_learned"] == 8
     assert second["narrowed_range"] is not None or second["range_fallback"] is False
-    # The same scene again: the reused frame's cube stays within noise of the frame alone.
+    # The same scene again: the reused frame's cube differs from the frame alone no more
+    # than two frames alone differ (their noise).
     alone = anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=False, progress=False)
     one = anaglyph.reconstruct(rig, frames[11], whites=whites, progress=False)
     assert bits(alone[11]["r0c0"].cube) == bits(one["r0c0"].cube)
     assert one.manifest["temporal_reuse"]["previous"] is False
-    a, b = reused[11]["r0c0"].cube, one["r0c0"].cube
-    known = np.isfinite(a) & np.isfinite(b)
-    assert known.mean() > 0.8
-    assert np.sqrt(np.mean((a[known] - b[known]) ** 2)) < 0.02
+    def rms(a: np.ndarray, b: np.ndarray) -> float:
+        known = np.isfinite(a) & np.isfinite(b)
+        assert known.mean() > 0.8
+        return float(np.sqrt(np.mean((a[known] - b[known]) ** 2)))
+
+    scatter = rms(alone[10]["r0c0"].cube, alone[11]["r0c0"].cube)
+    assert rms(reused[11]["r0c0"].cube, one["r0c0"].cube) < 1.2 * scatter
+    # A still scene: most pixels keep their spectra.
+    assert second["reused_pixels"] > 0.5 * 8 * SIZE[0] * SIZE[1]
     # Chains of one frame reuse nothing.
     chained = anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=1, progress=False)
     assert bits(chained[11]["r0c0"].cube) == bits(one["r0c0"].cube)

@@ -11,6 +11,9 @@
 //!                                        view's solve, stage by stage (crate::solve)
 //! ```
 //!
+//! In a sequence, [`reconstruct_next`] starts each frame from what the previous one
+//! handed on ([`FrameCarry`]; `reuse.rs` and `view_reuse.rs`).
+//!
 //! A stage of the array is a function of its own file taking and returning domain values;
 //! a stage of a view's solve is a type in [`crate::solve`] listed by
 //! [`crate::solve::SolvePlan`].

@@ -13,7 +13,11 @@
 //!   while objects move, so the mixture is carried and only its estimate runs, unless it
 //!   finds clearly more of the view's pixels implausible than in the frame it was learned
 //!   in (a new material), when it is learned again
-//!   ([`crate::solve::CarriedPrior`]).
+//!   ([`crate::solve::CarriedPrior`]);
+//! - **the spectra of every pixel whose scene has not changed** (`view_reuse.rs`): only
+//!   the others go through the per-pixel stages of the solve, and the guided filter runs
+//!   again only near them. Each camera keeps a reference capture for this, the capture as
+//!   the kept spectra saw it.
 //!
 //! A **cut** (another scene, a jump of the array) makes all of it unsound. Each camera's
 //! image is compared with the previous frame's by the correlation of their means over
