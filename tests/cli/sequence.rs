@@ -45,11 +45,13 @@ fn read_f32(store: &Path, name: &str) -> Vec<u32> {
     values.into_iter().map(f32::to_bits).collect()
 }
 
+/// `reconstruct` of `captures` into `out`, `--frames` and any `extra` options.
 fn reconstruct(
     dir: &Path,
     captures: &str,
     out: &str,
     frames: Option<&str>,
+    extra: &[&str],
 ) -> std::process::Output {
     let mut args = vec![
         "reconstruct",
@@ -67,6 +69,7 @@ fn reconstruct(
     if let Some(frames) = frames {
         args.extend(["--frames", frames]);
     }
+    args.extend_from_slice(extra);
     anaglyph(&args, dir)
 }
 
@@ -75,17 +78,19 @@ fn a_sequence_goes_to_a_zarr_store_frame_by_frame_in_either_layout() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     two_frames(d);
-    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    // Every frame alone (--no-reuse): each is a single-frame run's, bit for bit.
+    let alone = ["--no-reuse"];
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"), &alone);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stdout(&o).contains("wrote 2 frame(s) into fm.zarr"),
         "{}",
         stdout(&o)
     );
-    let o = reconstruct(d, "cm", "cm.zarr", Some("all"));
+    let o = reconstruct(d, "cm", "cm.zarr", Some("all"), &alone);
     assert!(o.status.success(), "{}", stderr(&o));
     // One frame alone, into a store of its own: the sequence's frame 1, bit for bit.
-    let o = reconstruct(d, "sim1/captures", "one.zarr", None);
+    let o = reconstruct(d, "sim1/captures", "one.zarr", None, &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     for name in ["reflectance", "disparity"] {
         let sequence = read_f32(&d.join("fm.zarr"), name);
@@ -93,8 +98,33 @@ fn a_sequence_goes_to_a_zarr_store_frame_by_frame_in_either_layout() {
         let one = read_f32(&d.join("one.zarr"), name);
         assert_eq!(&sequence[sequence.len() / 2..], &one[..], "{name}");
     }
-    // A rerun finds both frames written; frames 1:1 of another store is its own run.
-    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    // With reuse (the default) the first frame is the same and the run says what the
+    // second reused.
+    let o = reconstruct(d, "fm", "reused.zarr", Some("all"), &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("temporal reuse over 1 frame(s) after the first: 0 cut(s)"),
+        "{}",
+        stdout(&o)
+    );
+    for name in ["reflectance", "disparity"] {
+        let (reused, alone) = (
+            read_f32(&d.join("reused.zarr"), name),
+            read_f32(&d.join("fm.zarr"), name),
+        );
+        assert_eq!(
+            reused[..reused.len() / 2],
+            alone[..alone.len() / 2],
+            "{name}"
+        );
+    }
+    // A rerun finds both frames written; frames 1:1 of another store is its own run, and
+    // so is a rerun with reuse of a store written without.
+    let o = reconstruct(d, "fm", "reused.zarr", Some("all"), &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"), &[]);
+    assert_clean_failure(&o, "a store of another run");
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"), &alone);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("2 of 2 frames are already in"),
@@ -102,7 +132,7 @@ fn a_sequence_goes_to_a_zarr_store_frame_by_frame_in_either_layout() {
         stderr(&o)
     );
     assert!(stdout(&o).contains("wrote 0 frame(s)"), "{}", stdout(&o));
-    let o = reconstruct(d, "fm", "fm.zarr", Some("1:1"));
+    let o = reconstruct(d, "fm", "fm.zarr", Some("1:1"), &alone);
     assert_clean_failure(&o, "a store of another run");
 }
 
@@ -111,19 +141,22 @@ fn bad_sequences_are_refused_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     two_frames(d);
-    assert_clean_failure(&reconstruct(d, "fm", "out", Some("all")), "ending in .zarr");
+    assert_clean_failure(
+        &reconstruct(d, "fm", "out", Some("all"), &[]),
+        "ending in .zarr",
+    );
     std::fs::remove_file(d.join("cm/r1c2/1.png")).unwrap();
-    let o = reconstruct(d, "cm", "cm.zarr", Some("all"));
+    let o = reconstruct(d, "cm", "cm.zarr", Some("all"), &[]);
     assert_clean_failure(&o, "frame 1: no capture of camera r1c2");
     std::fs::remove_file(d.join("fm/frame_0/r0c1.png")).unwrap();
-    let o = reconstruct(d, "fm", "fm.zarr", Some("all"));
+    let o = reconstruct(d, "fm", "fm.zarr", Some("all"), &[]);
     assert_clean_failure(&o, "frame 0");
     assert!(stderr(&o).contains("r0c1"), "{}", stderr(&o));
     assert_clean_failure(
-        &reconstruct(d, "fm", "fm.zarr", Some("5:9")),
+        &reconstruct(d, "fm", "fm.zarr", Some("5:9"), &[]),
         "no frames '5:9'",
     );
-    assert_clean_failure(&reconstruct(d, "fm", "fm.zarr", Some("2:1")), "frames");
+    assert_clean_failure(&reconstruct(d, "fm", "fm.zarr", Some("2:1"), &[]), "frames");
     assert!(!d.join("fm.zarr").exists() && !d.join("cm.zarr").exists());
 }
 
