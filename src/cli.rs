@@ -607,6 +607,11 @@ pub struct ReconstructArgs {
     /// camera, else frame-major).
     #[arg(long, value_enum, requires = "frames")]
     pub layout: Option<FrameLayout>,
+    /// Dark frames of the sequence's captures: a folder of <camera>.png|tif (one per
+    /// camera for every frame), or of a dark per frame and camera laid out as the captures
+    /// (frame-major or camera-major). The white boards keep the rig's `dark`.
+    #[arg(long, requires = "frames")]
+    pub darks: Option<PathBuf>,
     /// Reconstruct every frame of --frames alone, instead of starting each from what the
     /// previous frame learned (the search range narrowed to its disparities, its views'
     /// scene priors; a cut falls back to the full search by itself).

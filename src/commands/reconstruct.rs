@@ -131,6 +131,7 @@ fn input_paths(args: &ReconstructArgs, rig: &Rig) -> Vec<PathBuf> {
         args.captures.as_ref(),
         args.white.as_ref(),
         args.calibration.as_ref(),
+        args.darks.as_ref(),
         args.truth.as_ref(),
         args.true_disparity.as_ref(),
         args.registration.model.as_ref(),
@@ -303,7 +304,10 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
     // Every frame's files are found, and the first frame read, before any work.
     let frames: Vec<Option<FrameFiles>> = match (args.frames, &args.captures) {
         (Some(range), Some(dir)) => {
-            let sequence = FrameSequence::discover(&rig, dir, args.layout, range)?;
+            let mut sequence = FrameSequence::discover(&rig, dir, args.layout, range)?;
+            if let Some(darks) = &args.darks {
+                sequence = sequence.with_darks(&rig, darks)?;
+            }
             for (first, last) in sequence.gaps() {
                 eprintln!("note: frames {first} to {last} are missing from the numbering");
             }

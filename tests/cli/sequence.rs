@@ -223,3 +223,89 @@ fn a_simulated_moving_sequence_reconstructs_frame_by_frame() {
         stderr(&o)
     );
 }
+
+#[test]
+fn dark_frames_per_frame_or_per_sequence_serve_the_captures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = anaglyph(
+        &[
+            "simulate",
+            "--scene",
+            "tabletop",
+            "--size",
+            "64x48",
+            "--frames",
+            "2",
+            "--dark",
+            "0.05,0.01",
+            "--out",
+            "dk",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The master darks again, once per frame (frame-major), for one frame only, and
+    // swapped between cameras (another fixed pattern) for frame 1.
+    for k in 0..2 {
+        for (i, cam) in CAMERAS.into_iter().enumerate() {
+            let to = d.join(format!("perframe/{k}/{cam}.png"));
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::copy(d.join(format!("dk/dark/{cam}.png")), &to).unwrap();
+            let other = if k == 1 { CAMERAS[(i + 1) % 8] } else { cam };
+            let to = d.join(format!("swapped/{k}/{cam}.png"));
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::copy(d.join(format!("dk/dark/{other}.png")), &to).unwrap();
+            if k == 0 {
+                let partial = d.join(format!("partial/{k}/{cam}.png"));
+                std::fs::create_dir_all(partial.parent().unwrap()).unwrap();
+                std::fs::copy(d.join(format!("dk/dark/{cam}.png")), &partial).unwrap();
+            }
+        }
+    }
+    let run = |out: &str, darks: Option<&str>| {
+        let mut args = vec![
+            "reconstruct",
+            "--rig",
+            "dk/rig.toml",
+            "--captures",
+            "dk/captures",
+            "--white",
+            "dk/white",
+            "--frames",
+            "all",
+            "--disp-range",
+            "0:8",
+            "--no-reuse",
+            "--out",
+            out,
+        ];
+        if let Some(darks) = darks {
+            args.extend(["--darks", darks]);
+        }
+        anaglyph(&args, d)
+    };
+    for (out, darks) in [
+        ("rig.zarr", None),
+        ("perframe.zarr", Some("perframe")),
+        ("flat.zarr", Some("dk/dark")),
+        ("swapped.zarr", Some("swapped")),
+    ] {
+        let o = run(out, darks);
+        assert!(o.status.success(), "{out}: {}", stderr(&o));
+    }
+    // The same darks, from the rig, per frame or per sequence: the same cubes.
+    let expected = read_f32(&d.join("rig.zarr"), "reflectance");
+    assert_eq!(expected, read_f32(&d.join("perframe.zarr"), "reflectance"));
+    assert_eq!(expected, read_f32(&d.join("flat.zarr"), "reflectance"));
+    // Frame 1's own darks are what its captures lose: frame 0 the same, frame 1 not.
+    let swapped = read_f32(&d.join("swapped.zarr"), "reflectance");
+    let half = expected.len() / 2;
+    assert_eq!(expected[..half], swapped[..half]);
+    assert_ne!(expected[half..], swapped[half..]);
+    // A frame without its darks is refused before any work, naming it.
+    let o = run("partial.zarr", Some("partial"));
+    assert_clean_failure(&o, "frame 1");
+    assert!(stderr(&o).contains("no dark frames"), "{}", stderr(&o));
+    assert!(!d.join("partial.zarr").exists());
+}

@@ -85,12 +85,16 @@ fn array_captures(
     rig: &anaglyph_core::rig::Rig,
     captures: &Bound<'_, PyDict>,
     whites: Option<&Bound<'_, PyDict>>,
-    darks: Option<&Bound<'_, PyDict>>,
+    (darks, frame_darks): (Option<&Bound<'_, PyDict>>, Option<&Bound<'_, PyDict>>),
     calibration: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<ArrayCaptures> {
     let pictures = per_camera(rig, Some(captures), "captures")?;
     let whites = per_camera(rig, whites, "whites")?;
     let darks = per_camera(rig, darks, "darks")?;
+    let frame_darks = match frame_darks {
+        Some(d) => Some(per_camera(rig, Some(d), "frame_darks")?),
+        None => None,
+    };
     let calibrations: Vec<Option<Calibration>> = match calibration {
         None => vec![None; rig.cameras.len()],
         Some(c) => match c.cast::<PyDict>() {
@@ -140,25 +144,39 @@ fn array_captures(
             }
             (None, None, None) => None,
         };
-        if let Some(Dark::Frame(frame)) = &dark {
-            let size = |i: &Image<f32>| [i.height, i.width, i.channels];
-            if size(frame) != size(&capture) {
-                return Err(crate::errors::shape_error(
-                    format!("dark frame of camera {} against its capture", cam.name),
-                    &size(frame),
-                    &size(&capture),
-                ));
+        // A frame's own dark frame serves its capture; the white board keeps the others.
+        let capture_dark = match frame_darks.as_ref().map(|d| &d[i]) {
+            Some(Some(d)) => Some(Dark::Frame(read(d, "frame dark frame")?)),
+            Some(None) => {
+                return Err(to_py(Error::captures(
+                    "frame_darks",
+                    format!("no dark frame of camera {}", cam.name),
+                    "one per camera",
+                )))
+            }
+            None => dark.clone(),
+        };
+        for dark in [&dark, &capture_dark] {
+            if let Some(Dark::Frame(frame)) = dark {
+                let size = |i: &Image<f32>| [i.height, i.width, i.channels];
+                if size(frame) != size(&capture) {
+                    return Err(crate::errors::shape_error(
+                        format!("dark frame of camera {} against its capture", cam.name),
+                        &size(frame),
+                        &size(&capture),
+                    ));
+                }
             }
         }
         let mut white = whites[i]
             .as_ref()
             .map(|w| read(w, "white board"))
             .transpose()?;
-        if let Some(dark) = &dark {
+        if let Some(dark) = &capture_dark {
             dark.subtract_from(&mut capture);
-            if let Some(white) = &mut white {
-                dark.subtract_from(white);
-            }
+        }
+        if let (Some(dark), Some(white)) = (&dark, &mut white) {
+            dark.subtract_from(white);
         }
         cameras.push(CameraCapture {
             name: cam.name.clone(),
@@ -208,7 +226,7 @@ pub struct FrameCarry {
                     matching_image=None, warp_kernel=None, white_reflectance=None,
                     saturation=None, tuning=None, progress=None, store=None, frame=0,
                     frames=None, overwrite=false, arrays=true, skip_done=false,
-                    create_only=false, reuse=true, previous=None))]
+                    create_only=false, reuse=true, previous=None, frame_darks=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -240,6 +258,7 @@ pub fn reconstruct<'py>(
     create_only: bool,
     reuse: bool,
     previous: Option<&FrameCarry>,
+    frame_darks: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let rig = &rig.inner;
@@ -276,7 +295,7 @@ pub fn reconstruct<'py>(
         }
     }
     options.validate().py()?;
-    let captures = array_captures(rig, captures, whites, darks, calibration)?;
+    let captures = array_captures(rig, captures, whites, (darks, frame_darks), calibration)?;
     let loading_seconds = started.elapsed().as_secs_f64();
     let cancel = AtomicBool::new(false);
     let callback_error: Mutex<Option<PyErr>> = Mutex::new(None);

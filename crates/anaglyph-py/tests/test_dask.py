@@ -152,3 +152,28 @@ def test_workers_read_the_frames_of_a_folder_themselves(cli, client, tmp_path):
     expected, got = arrays(serial), arrays(sharded)
     for name in expected:
         assert expected[name].tobytes() == got[name].tobytes(), name
+
+
+def test_frames_own_dark_frames_travel_with_their_tasks(clip, client, tmp_path):
+    import anaglyph.dask
+
+    rig, frames, whites = clip
+    # Frame 2's captures lose a dark level of 2 % of full scale; the others none.
+    level = {k: np.full_like(frames[k]["r0c0"], 1311 if k == 2 else 0) for k in frames}
+    frame_darks = {k: {c["name"]: level[k] for c in rig.cameras} for k in frames}
+    serial = tmp_path / "serial.zarr"
+    anaglyph.reconstruct_frames(
+        rig, frames, store=serial, whites=whites, frame_darks=frame_darks, reuse=2, progress=False
+    )
+    sharded = tmp_path / "sharded.zarr"
+    anaglyph.dask.reconstruct_frames(
+        rig, frames, sharded, client=client, batch=2, whites=whites, frame_darks=frame_darks, progress=False
+    )
+    expected, got = arrays(serial), arrays(sharded)
+    for name in expected:
+        assert expected[name].tobytes() == got[name].tobytes(), name
+    plain = tmp_path / "plain.zarr"
+    anaglyph.reconstruct_frames(rig, frames, store=plain, whites=whites, reuse=2, progress=False)
+    cubes, darkened = arrays(plain)["reflectance"], expected["reflectance"]
+    assert cubes[:2].tobytes() == darkened[:2].tobytes()
+    assert cubes[2].tobytes() != darkened[2].tobytes()

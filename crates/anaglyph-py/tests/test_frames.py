@@ -180,3 +180,23 @@ def test_simulated_frames_move_and_keep_the_exposures():
     assert bits(first.captures["r0c0"]) != bits(later.captures["r0c0"])
     moved = np.abs(first.disparity["r0c0"] - later.disparity["r0c0"]) > 0.01
     assert 0.02 < np.mean(moved) < 0.9
+
+
+def test_each_frame_may_bring_its_own_dark_frames():
+    rig = small_rig("paper-2x4", 64)
+    sims = [anaglyph.simulate("tabletop", rig=rig, size=(64, 48), seed=0, frame=k, dark=(0.05, 0.01)) for k in range(2)]
+    frames = {k: sim.captures for k, sim in enumerate(sims)}
+    master = sims[0].darks
+    options = dict(whites=sims[0].whites, disp_range=(0, 8), reuse=False, progress=False)
+    one_set = anaglyph.reconstruct_frames(rig, frames, darks=master, **options)
+    per_frame = anaglyph.reconstruct_frames(rig, frames, darks=master, frame_darks={0: master, 1: master}, **options)
+    for k in (0, 1):
+        assert bits(one_set[k]["r0c0"].cube) == bits(per_frame[k]["r0c0"].cube)
+    # Frame 1's own darks (another camera's pattern) change frame 1 alone.
+    names = [c["name"] for c in rig.cameras]
+    swapped = {name: master[names[(i + 1) % len(names)]] for i, name in enumerate(names)}
+    changed = anaglyph.reconstruct_frames(rig, frames, darks=master, frame_darks={0: master, 1: swapped}, **options)
+    assert bits(changed[0]["r0c0"].cube) == bits(one_set[0]["r0c0"].cube)
+    assert bits(changed[1]["r0c0"].cube) != bits(one_set[1]["r0c0"].cube)
+    with pytest.raises(anaglyph.CapturesError, match="frame 1"):
+        anaglyph.reconstruct_frames(rig, frames, darks=master, frame_darks={0: master}, **options)

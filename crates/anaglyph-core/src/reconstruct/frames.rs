@@ -78,6 +78,9 @@ impl std::str::FromStr for FrameRange {
 pub struct FrameFiles {
     pub number: i64,
     pub captures: Vec<PathBuf>,
+    /// Each camera's dark frame for this frame's capture, in rig order (None: the rig's
+    /// `dark` or `black_level`, which also serve the white boards).
+    pub darks: Option<Vec<PathBuf>>,
 }
 
 /// The frames found in a capture folder, in numerical order.
@@ -189,7 +192,11 @@ impl FrameSequence {
                                 .map_err(|e| frame_error(number, e))
                         })
                         .collect::<Result<_>>()?;
-                    frames.push(FrameFiles { number, captures });
+                    frames.push(FrameFiles {
+                        number,
+                        captures,
+                        darks: None,
+                    });
                 }
                 frames
             }
@@ -239,6 +246,7 @@ impl FrameSequence {
                     .map(|number| FrameFiles {
                         number,
                         captures: per_camera.iter().map(|f| f[&number].clone()).collect(),
+                        darks: None,
                     })
                     .collect()
             }
@@ -258,6 +266,58 @@ impl FrameSequence {
             });
         }
         Ok(FrameSequence { layout, frames })
+    }
+
+    /// Gives every frame's captures dark frames from `dir`: one per camera for the whole
+    /// sequence (`dir/<camera>.png|tif`), or a dark per frame and camera laid out as a
+    /// sequence of captures is (frame-major or camera-major, found by
+    /// [`FrameSequence::discover`]), where every frame of this sequence must have its own.
+    /// The white boards keep the rig's dark frames (they were captured apart).
+    pub fn with_darks(mut self, rig: &Rig, dir: &Path) -> Result<Self> {
+        if !dir.is_dir() {
+            return Err(Error::MissingFile {
+                path: dir.to_path_buf(),
+                what: "no folder of dark frames".into(),
+            });
+        }
+        let flat: Option<Vec<PathBuf>> = rig
+            .cameras
+            .iter()
+            .map(|c| super::inputs::find_in(dir, &c.name, &EXTENSIONS, "dark frame").ok())
+            .collect();
+        if let Some(flat) = flat {
+            for frame in &mut self.frames {
+                frame.darks = Some(flat.clone());
+            }
+            return Ok(self);
+        }
+        let darks = FrameSequence::discover(rig, dir, None, FrameRange::All).map_err(|e| {
+            Error::captures(
+                format!("dark frames in {}", dir.display()),
+                e.to_string(),
+                "a dark frame per camera (<camera>.png) for the sequence, or a dark per frame                  and camera laid out as the captures",
+            )
+        })?;
+        let by_number: BTreeMap<i64, Vec<PathBuf>> = darks
+            .frames
+            .into_iter()
+            .map(|f| (f.number, f.captures))
+            .collect();
+        for frame in &mut self.frames {
+            let Some(files) = by_number.get(&frame.number) else {
+                return Err(Error::captures(
+                    format!("frame {}", frame.number),
+                    format!(
+                        "no dark frames in {} (it has frames {})",
+                        dir.display(),
+                        summarise_numbers(&by_number.keys().copied().collect::<Vec<_>>())
+                    ),
+                    "a dark frame of every camera for every frame reconstructed",
+                ));
+            };
+            frame.darks = Some(files.clone());
+        }
+        Ok(self)
     }
 
     pub fn numbers(&self) -> Vec<i64> {

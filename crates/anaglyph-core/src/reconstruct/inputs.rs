@@ -117,9 +117,25 @@ struct CameraFiles {
     white: Option<PathBuf>,
     calibration: Option<PathBuf>,
     dark: Option<PathBuf>,
+    /// A dark frame of the capture alone (a sequence's frame), instead of `dark`.
+    capture_dark: Option<PathBuf>,
 }
 
 impl CameraFiles {
+    /// Every camera's files, in rig order.
+    fn find_all(
+        rig: &Rig,
+        captures: &[Captures<'_>],
+        whites: Option<&Path>,
+        calibrations: Option<&Path>,
+    ) -> Result<Vec<Self>> {
+        rig.cameras
+            .iter()
+            .zip(captures)
+            .map(|(cam, &source)| CameraFiles::find(cam, source, whites, calibrations))
+            .collect()
+    }
+
     /// `cam`'s files: its capture from `captures`, the rest in the folders given, else
     /// where the rig file names them.
     fn find(
@@ -157,6 +173,7 @@ impl CameraFiles {
             white,
             calibration,
             dark: cam.dark.clone(),
+            capture_dark: None,
         })
     }
 }
@@ -183,6 +200,7 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
             Some(&files.capture),
             files.white.as_ref(),
             files.dark.as_ref(),
+            files.capture_dark.as_ref(),
         ];
         for path in pictures.into_iter().flatten() {
             let header = read_image_header(path)?;
@@ -251,7 +269,13 @@ impl ArrayCaptures {
             });
         }
         let sources: Vec<Captures<'_>> = frame.captures.iter().map(|p| Captures::File(p)).collect();
-        Self::load_from(rig, &sources, whites, calibrations)
+        let mut files = CameraFiles::find_all(rig, &sources, whites, calibrations)?;
+        if let Some(darks) = &frame.darks {
+            for (files, dark) in files.iter_mut().zip(darks) {
+                files.capture_dark = Some(dark.clone());
+            }
+        }
+        Self::load_files(rig, &files)
     }
 
     fn load_from(
@@ -260,13 +284,12 @@ impl ArrayCaptures {
         whites: Option<&Path>,
         calibrations: Option<&Path>,
     ) -> Result<Self> {
-        let files = rig
-            .cameras
-            .iter()
-            .zip(captures)
-            .map(|(cam, &source)| CameraFiles::find(cam, source, whites, calibrations))
-            .collect::<Result<Vec<_>>>()?;
-        let (width, height) = check_headers(rig, &files)?;
+        let files = CameraFiles::find_all(rig, captures, whites, calibrations)?;
+        Self::load_files(rig, &files)
+    }
+
+    fn load_files(rig: &Rig, files: &[CameraFiles]) -> Result<Self> {
+        let (width, height) = check_headers(rig, files)?;
         let channels = rig.channel_count() as u64;
         let bands = rig.reconstruction_shape()?.count as u64;
         // Captures and white boards, their calibrated copies, and one view's cube.
@@ -276,24 +299,29 @@ impl ArrayCaptures {
             crate::memory::f32_bytes(values),
         )?;
         let mut cameras = Vec::with_capacity(files.len());
-        for (cam, files) in rig.cameras.iter().zip(&files) {
+        for (cam, files) in rig.cameras.iter().zip(files) {
             let calibration = files
                 .calibration
                 .as_deref()
                 .map(Calibration::load)
                 .transpose()?;
             let dark = dark_of(cam, files)?;
-            let read = |path: &Path| -> Result<LinearImage> {
+            // A frame's own dark frame serves its capture; the white board keeps the rig's.
+            let capture_dark = match &files.capture_dark {
+                Some(path) => Some(Dark::Frame(read_linear_image(path)?)),
+                None => dark.clone(),
+            };
+            let read = |path: &Path, dark: &Option<Dark>| -> Result<LinearImage> {
                 let mut image = read_linear_image(path)?;
-                if let Some(dark) = &dark {
+                if let Some(dark) = dark {
                     dark.subtract_from(&mut image);
                 }
                 Ok(image)
             };
             cameras.push(CameraCapture {
                 name: cam.name.clone(),
-                capture: read(&files.capture)?,
-                white: files.white.as_deref().map(read).transpose()?,
+                capture: read(&files.capture, &capture_dark)?,
+                white: files.white.as_deref().map(|w| read(w, &dark)).transpose()?,
                 exposure: cam.exposure,
                 calibration,
             });

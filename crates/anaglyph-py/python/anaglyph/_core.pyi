@@ -43,6 +43,7 @@ __all__ = [
     "CancelledError",
     "InternalError",
     "Rig",
+    "FrameCarry",
     "choices",
     "set_num_threads",
     "get_num_threads",
@@ -201,6 +202,7 @@ def reconstruct(
     create_only: bool = False,
     reuse: bool = True,
     previous: FrameCarry | None = None,
+    frame_darks: dict[str, _Image] | None = None,
 ) -> dict[str, Any]: ...
 @final
 class FrameCarry:

@@ -172,6 +172,21 @@ def _check_frames(rig: Rig, numbered: list[tuple[int, Any]]) -> None:
                 )
 
 
+def _frame_darks(
+    frame_darks: Mapping[int, Mapping[str, np.ndarray]] | None, numbers: list[int]
+) -> dict[int, dict[str, Any]] | None:
+    """Each frame's own dark frames, checked to cover ``numbers`` before any work."""
+    if frame_darks is None:
+        return None
+    missing = [n for n in numbers if n not in frame_darks]
+    if missing:
+        raise _core.CapturesError(
+            f"frame_darks: no dark frames for frame {missing[0]} (expected "
+            "{frame number: {camera: image}} for every frame reconstructed)"
+        )
+    return {n: _captures(frame_darks[n], f"frame_darks of frame {n}") for n in numbers}
+
+
 def reconstruct_frames(
     rig: Rig | str,
     frames: Mapping[int, Mapping[str, np.ndarray]] | Sequence[Mapping[str, np.ndarray]],
@@ -179,6 +194,7 @@ def reconstruct_frames(
     overwrite: bool = False,
     whites: Mapping[str, np.ndarray] | None = None,
     darks: Mapping[str, np.ndarray] | None = None,
+    frame_darks: Mapping[int, Mapping[str, np.ndarray]] | None = None,
     calibration: Mapping[str, Any] | PathLike | None = None,
     views: Sequence[str] | None = None,
     preset: str = "default",
@@ -198,6 +214,8 @@ def reconstruct_frames(
 ) -> SequenceRun | dict[int, Reconstruction]:
     """Reconstructs every frame of a sequence, in frame order, with :func:`reconstruct`'s
     options (the white boards, dark frames and calibration hold for the whole sequence).
+    ``frame_darks``: each frame's own dark frames for its captures, ``{frame number:
+    {camera: image}}`` (every frame's; the white boards keep ``darks``).
 
     ``frames``: a dict of frame number -> captures (one image per camera, as
     :func:`reconstruct` takes), or a list of captures numbered from 0. Every frame must
@@ -230,6 +248,7 @@ def reconstruct_frames(
     rig = _rig(rig)
     numbered = _numbered(frames)
     _check_frames(rig, numbered)
+    own_darks = _frame_darks(frame_darks, [n for n, _ in numbered])
     options = _core_options(
         whites=whites,
         darks=darks,
@@ -282,6 +301,7 @@ def reconstruct_frames(
                 arrays=store is None,
                 skip_done=store is not None,
                 previous=carry,
+                frame_darks=own_darks[number] if own_darks else None,
                 **options,
             )
             seconds = time.perf_counter() - started

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import _core
 from ._core import Rig
-from ._frames import FrameReport, SequenceRun, _check_frames, _LazyFrame, _numbered
+from ._frames import FrameReport, SequenceRun, _check_frames, _frame_darks, _LazyFrame, _numbered
 from ._pipeline import PathLike, _captures, _core_options, _rig
 
 
@@ -40,7 +40,7 @@ def _read(captures: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run_batch(
-    batch: list[tuple[int, dict[str, np.ndarray]]],
+    batch: list[tuple[int, dict[str, Any], dict[str, Any] | None]],
     rig: Rig,
     store: str,
     numbers: list[int],
@@ -71,13 +71,14 @@ def _run_batch(
             **options,
         )
         done = dict(zip(numbers, probe["frames_done"]))
-        recompute = not all(done[number] for number, _ in batch)
+        recompute = not all(done[item[0]] for item in batch)
     carry = None
-    for number, captures in batch:
+    for number, captures, darks in batch:
         started = time.perf_counter()
         out = _core.reconstruct(
             rig,
             _read(captures),
+            frame_darks=darks,
             store=store,
             frame=number,
             frames=numbers,
@@ -113,7 +114,7 @@ def reconstruct_frames(
     """:func:`anaglyph.reconstruct_frames` into ``store`` on a Dask cluster: batches of
     ``batch`` consecutive frames as tasks of ``client`` (default: the current client).
     ``options`` are :func:`anaglyph.reconstruct`'s (``whites``, ``output``, ``preset``,
-    ...) and ``reuse``. ``store`` must be on a filesystem every worker sees. Returns the
+    ...), ``reuse`` and ``frame_darks`` (each frame's darks travel with its task). ``store`` must be on a filesystem every worker sees. Returns the
     per-frame reports in frame order. Temporal reuse chains the frames of each batch, so
     the bytes of the store are those of a serial run with ``reuse=batch`` (or of any run
     with ``reuse=False``); a task rerun after a lost worker writes the same bytes.
@@ -132,6 +133,7 @@ def reconstruct_frames(
         raise _core.SettingError(
             "client: a Dask client with no workers (expected a cluster with at least one worker)"
         )
+    own_darks = _frame_darks(options.pop("frame_darks", None), [n for n, _ in numbered])
     unknown = sorted(set(options) - set(inspect.signature(_core_options).parameters))
     if unknown:
         raise TypeError(f"reconstruct_frames: unknown options {unknown}")
@@ -159,7 +161,7 @@ def reconstruct_frames(
         return _captures(captures, f"frame {number}")
 
     batches = [
-        [(n, shipped(n, c)) for n, c in numbered[i : i + batch]]
+        [(n, shipped(n, c), own_darks[n] if own_darks else None) for n, c in numbered[i : i + batch]]
         for i in range(0, len(numbered), batch)
     ]
     # The run's settings travel with the function, each batch's captures with its task
