@@ -700,3 +700,46 @@ fn unclear_inputs_get_messages_naming_them() {
     assert_clean_failure(&o, "a camera named 'all'");
     assert!(!d.join("rec").exists());
 }
+
+/// The exit status: 2 when the command line cannot be parsed (as clap and grep report
+/// usage errors), 1 for every other error, each with an `error:` line.
+#[test]
+fn usage_errors_exit_2_and_other_errors_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let usage = [
+        vec!["reconstruct", "--rig", "r.toml", "--out", "o", "--bogus"],
+        vec!["reconstruct", "--rig", "r.toml"],
+        vec![
+            "reconstruct",
+            "--rig",
+            "r.toml",
+            "--out",
+            "o",
+            "--disp-range",
+            "wide",
+        ],
+    ];
+    for args in usage {
+        let o = anaglyph(&args, d);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("error:"), "{}", stderr(&o));
+    }
+    let o = anaglyph(&["reconstruct", "--rig", "missing.toml", "--out", "o"], d);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert_clean_failure(&o, "missing.toml");
+    let o = anaglyph(
+        &[
+            "reconstruct",
+            "--rig",
+            "missing.toml",
+            "--out",
+            "o",
+            "--white-reflectance",
+            "-1",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert_clean_failure(&o, "white reflectance");
+}

@@ -60,10 +60,11 @@ impl OutputFolder {
         remove_stale_siblings(parent, &name);
         let pid = std::process::id();
         let staging = parent.join(format!(".{name}.partial-{pid}"));
+        // Errors name the folder asked for, not the hidden staging folder beside it.
         if staging.exists() {
-            std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+            std::fs::remove_dir_all(&staging).map_err(|e| Error::io(target, e))?;
         }
-        std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
+        std::fs::create_dir(&staging).map_err(|e| Error::io(target, e))?;
         Ok(OutputFolder {
             target: target.to_path_buf(),
             staging,

@@ -231,10 +231,11 @@ impl LightFieldStore {
             name.to_string_lossy(),
             std::process::id()
         ));
+        // Errors name the store asked for, not the hidden staging folder beside it.
         if staging.exists() {
-            std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+            std::fs::remove_dir_all(&staging).map_err(|e| Error::io(path, e))?;
         }
-        std::fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+        std::fs::create_dir_all(&staging).map_err(|e| Error::io(path, e))?;
         if let Err(e) = write_template(&staging, &layout) {
             let _ = std::fs::remove_dir_all(&staging);
             return Err(e);

@@ -232,10 +232,18 @@ fn check_spacing(placements: &[Placement], rig: &str) -> Result<()> {
                 return Err(Error::rig_layout(
                     rig,
                     format!(
-                        "cameras {} and {} both at [{}, {}] mm",
-                        a.name, b.name, a.position_mm[0], a.position_mm[1]
+                        "cameras {} at [{}, {}] mm and {} at [{}, {}] mm, {d} mm apart",
+                        a.name,
+                        a.position_mm[0],
+                        a.position_mm[1],
+                        b.name,
+                        b.position_mm[0],
+                        b.position_mm[1]
                     ),
-                    "one camera per position",
+                    format!(
+                        "one camera per position (positions closer than {SAME_POSITION_MM} mm \
+                         are one)"
+                    ),
                 ));
             }
             nearest = nearest.min(d);
@@ -377,7 +385,18 @@ mod tests {
         assert!(e.contains("2 reference cameras (nb0, nb6)"), "{e}");
         let same = hexagon("").replace("[40, 0]", "[0, 0]");
         let e = error(&same);
-        assert!(e.contains("cameras nb0 and nb1 both at [0, 0] mm"), "{e}");
+        assert!(
+            e.contains("cameras nb0 at [0, 0] mm and nb1 at [0, 0] mm, 0 mm apart"),
+            "{e}"
+        );
+        // Nearly the same: the tolerance is named.
+        let near = hexagon("").replace("[40, 0]", "[0.0004, 0]");
+        let e = error(&near);
+        assert!(
+            e.contains("nb1 at [0.0004, 0] mm, 0.0004 mm apart")
+                && e.contains("positions closer than 0.001 mm are one"),
+            "{e}"
+        );
         let far = hexagon("").replace("[40, 0]", "[400, 0]");
         let e = error(&far);
         assert!(
