@@ -11,9 +11,9 @@ use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
 use anaglyph_core::io::{read_linear_image, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct_next, ArrayCaptures, CameraCapture, Dark, DisparitySearch,
-    FrameCarry as CoreFrameCarry, FrameLayout, FrameRange, FrameSequence, Preset, Products,
-    ReconstructOptions, SolveTuning, Stage,
+    reconstruct as core_reconstruct, reconstruct_next, ArrayCaptures, CameraCapture, Dark,
+    DisparitySearch, FrameCarry as CoreFrameCarry, FrameLayout, FrameRange, FrameSequence, Preset,
+    Products, ReconstructOptions, SolveTuning, Stage,
 };
 use anaglyph_core::rectify::{Calibration, Homography};
 use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
@@ -261,6 +261,7 @@ pub fn reconstruct<'py>(
     frame_darks: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
+    let in_sequence = frames.is_some();
     let rig = &rig.inner;
     let defaults = ReconstructOptions::default();
     let options = ReconstructOptions {
@@ -337,10 +338,15 @@ pub fn reconstruct<'py>(
             None => None,
         };
         let computing = std::time::Instant::now();
-        let previous = previous
-            .filter(|_| options.temporal_reuse)
-            .map(|p| &p.inner);
-        let (field, carry) = reconstruct_next(rig, &captures, &settings, &report, previous)?;
+        // A frame of a sequence (`frames` given) with reuse hands on what the next frame
+        // takes; a single frame builds nothing of it.
+        let (field, carry) = if in_sequence && options.temporal_reuse {
+            let previous = previous.map(|p| &p.inner);
+            let (field, carry) = reconstruct_next(rig, &captures, &settings, &report, previous)?;
+            (field, Some(carry))
+        } else {
+            (core_reconstruct(rig, &captures, &settings, &report)?, None)
+        };
         let writing = std::time::Instant::now();
         if let Some(store) = &store {
             let seconds = loading_seconds + computing.elapsed().as_secs_f64();
@@ -369,7 +375,9 @@ pub fn reconstruct<'py>(
         return Ok(out);
     };
     out.set_item("skipped", false)?;
-    out.set_item("carry", FrameCarry { inner: carry })?;
+    if let Some(carry) = carry {
+        out.set_item("carry", FrameCarry { inner: carry })?;
+    }
     let (w, h, bands) = (field.width, field.height, field.bands.len());
     let views = PyDict::new(py);
     for view in field.views.into_iter().filter(|_| arrays) {

@@ -184,7 +184,7 @@ pub fn reconstruct(
     settings: &PipelineSettings<'_>,
     progress: &Progress<'_>,
 ) -> Result<LightField> {
-    let (mut field, _) = reconstruct_next(rig, captures, settings, progress, None)?;
+    let (mut field, _) = reconstruct_frame(rig, captures, settings, progress, None, false)?;
     field.reuse = None;
     Ok(field)
 }
@@ -201,6 +201,22 @@ pub fn reconstruct_next(
     progress: &Progress<'_>,
     previous: Option<&FrameCarry>,
 ) -> Result<(LightField, FrameCarry)> {
+    let (field, carry) = reconstruct_frame(rig, captures, settings, progress, previous, true)?;
+    let carry =
+        carry.ok_or_else(|| Error::setting("temporal reuse", "nothing handed on", "a carry"))?;
+    Ok((field, carry))
+}
+
+/// A frame, starting from `previous`; with `hand_on`, what the next frame takes (a
+/// single frame builds none: it costs a copy of every view's measurements and spectra).
+fn reconstruct_frame(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    settings: &PipelineSettings<'_>,
+    progress: &Progress<'_>,
+    previous: Option<&FrameCarry>,
+    hand_on: bool,
+) -> Result<(LightField, Option<FrameCarry>)> {
     settings.validate()?;
     if rig.cameras.len() < 2 {
         return Err(Error::rig_layout(
@@ -248,14 +264,13 @@ pub fn reconstruct_next(
     // the references follow the captures where they moved.
     let now: Vec<&Image<f32>> = calibrated.views.iter().map(|v| &v.image).collect();
     let (changes, references) = match reuse {
-        Some(r) => {
-            let (changes, references) = r.carry.camera_changes(&now);
-            (changes, references)
-        }
-        None => (None, now.iter().map(|&i| i.clone()).collect()),
+        Some(r) => r.carry.camera_changes(&now),
+        None if hand_on => (None, now.iter().map(|&i| i.clone()).collect()),
+        None => (None, Vec::new()),
     };
     let mut pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
     pass.changes = changes.as_ref();
+    pass.hand_on = hand_on;
     let carried_views = reuse.map(|r| r.carry.views.as_slice());
     let (views, handed_on) = pass.run_all(&requested, carried_views, &mut log, progress)?;
     report.priors_carried = views
@@ -271,13 +286,13 @@ pub fn reconstruct_next(
     for (&v, view) in requested.iter().zip(handed_on) {
         carried_views[v] = Some(view);
     }
-    let carry = FrameCarry {
+    let carry = hand_on.then(|| FrameCarry {
         greys,
         references,
         maps: registered.disparities.clone(),
         range: registered.whole_range,
         views: carried_views,
-    };
+    });
 
     let field = LightField {
         width: captures.width,

@@ -28,6 +28,9 @@ pub(super) struct ViewPass<'a> {
     /// In a sequence's frame that is no cut: where each camera's capture moved since the
     /// references the previous frame kept (temporal reuse).
     pub changes: Option<&'a CameraChanges>,
+    /// Build what each view hands to the next frame (a sequence; a single frame builds
+    /// none).
+    pub hand_on: bool,
 }
 
 impl<'a> ViewPass<'a> {
@@ -54,6 +57,7 @@ impl<'a> ViewPass<'a> {
             },
             settings,
             changes: None,
+            hand_on: false,
         }
     }
 
@@ -266,14 +270,16 @@ impl<'a> ViewPass<'a> {
             }
         }
         // What the next frame compares with (the stages may mask measurements).
-        let gathered = (measurements.clone(), disputed.clone());
+        let gathered = self
+            .hand_on
+            .then(|| (measurements.clone(), disputed.clone()));
         let mut solve = ViewSolve::new(&self.context, v, measurements, disputed);
         solve.prior = prior;
         self.plan.run_per_pixel(&mut solve, seconds)?;
         // Pixels are reused only under a scene prior's mixture: it is what lets a part of
         // the view be solved alone (a new material among the changed pixels is caught by
         // the carried prior's own check).
-        let mut next = solve.prior.as_ref().map(|_| {
+        let mut next = gathered.filter(|_| solve.prior.is_some()).map(|gathered| {
             let (measurements, disputed) = gathered;
             PixelState {
                 measurements,
