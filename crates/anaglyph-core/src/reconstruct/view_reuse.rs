@@ -75,20 +75,7 @@ pub fn moved_pixels(reference: &Image<f32>, now: &Image<f32>) -> Vec<bool> {
             sum / c as f32
         })
         .collect();
-    let mut each: Vec<f32> = now
-        .data
-        .iter()
-        .zip(&reference.data)
-        .map(|(a, b)| (a - b).abs())
-        .filter(|d| d.is_finite() && *d > 0.0)
-        .collect();
-    let sigma = match each.len() {
-        0 => 0.0,
-        n => {
-            let at = ((n - 1) as f64 * NOISE_QUANTILE) as usize;
-            *each.select_nth_unstable_by(at, f32::total_cmp).1 / HALF_NORMAL_QUANTILE
-        }
-    };
+    let sigma = difference_sigma(&now.data, &reference.data);
     let limit = (MOVED_VARIANCE_FACTOR * sigma * sigma).min(MOVED_LIMIT * MOVED_LIMIT);
     (0..w * h)
         .map(|i| {
@@ -103,6 +90,25 @@ pub fn moved_pixels(reference: &Image<f32>, now: &Image<f32>) -> Vec<bool> {
             sum / n as f32 > limit
         })
         .collect()
+}
+
+/// The standard deviation σ of a static value's difference between `now` and `before`,
+/// from the [`NOISE_QUANTILE`] quantile of their nonzero finite absolute differences; 0
+/// when they hold none (a noise-free render's still frame).
+fn difference_sigma(now: &[f32], before: &[f32]) -> f32 {
+    let mut each: Vec<f32> = now
+        .iter()
+        .zip(before)
+        .map(|(a, b)| (a - b).abs())
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
+    match each.len() {
+        0 => 0.0,
+        n => {
+            let at = ((n - 1) as f64 * NOISE_QUANTILE) as usize;
+            *each.select_nth_unstable_by(at, f32::total_cmp).1 / HALF_NORMAL_QUANTILE
+        }
+    }
 }
 
 /// `mask` (w × h) dilated by a square of side 2·`reach` + 1.
@@ -230,19 +236,7 @@ impl PixelState {
     /// per-pixel stages would see the same input.
     fn same_measurements(&self, measurements: &[f32], rows: usize) -> Vec<bool> {
         let pixels = measurements.len() / rows;
-        let mut each: Vec<f32> = measurements
-            .iter()
-            .zip(&self.measurements)
-            .map(|(a, b)| (a - b).abs())
-            .filter(|d| d.is_finite() && *d > 0.0)
-            .collect();
-        let sigma = match each.len() {
-            0 => 0.0,
-            n => {
-                let at = ((n - 1) as f64 * NOISE_QUANTILE) as usize;
-                *each.select_nth_unstable_by(at, f32::total_cmp).1 / HALF_NORMAL_QUANTILE
-            }
-        };
+        let sigma = difference_sigma(measurements, &self.measurements);
         let limit = (SAME_NOISE_FACTOR * sigma).min(MOVED_LIMIT);
         (0..pixels)
             .map(|px| {
