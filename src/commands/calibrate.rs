@@ -45,6 +45,26 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             fit.name, fit.residual_rms_px, fit.residual_max_px
         );
     }
+    for fit in calibration.cameras.iter().filter(|f| f.mounted_otherwise()) {
+        let orientation = &fit.orientation;
+        let alternatives = if orientation.alternatives.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " (or {}: a {} board's colours cannot tell these apart)",
+                orientation.alternatives.join(" or "),
+                calibration.pattern
+            )
+        };
+        eprintln!(
+            "warning: camera {} sees the board {}{alternatives}: its map turns the image by {:.1}°{}, \
+             and reconstruct registers its captures (taken the same way) through it",
+            fit.name,
+            orientation.seen,
+            fit.rotation_deg,
+            if fit.mirrored { " and mirrors it" } else { "" }
+        );
+    }
     println!(
         "wrote {count} files under {} in {}; reconstruct with --calibration {}",
         out.display(),

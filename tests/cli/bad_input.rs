@@ -698,6 +698,52 @@ fn unclear_inputs_get_messages_naming_them() {
     rig.save(&d.join("all.toml")).unwrap();
     let o = anaglyph(&["rig", "show", "all.toml", "--plot", "a.svg"], d);
     assert_clean_failure(&o, "a camera named 'all'");
+    // A dark frame brighter than its capture is blamed, not the capture it blackens.
+    let mut bright = read_linear_image(&d.join("sim/captures/r0c1.png")).unwrap();
+    bright.data.fill(0.9);
+    write_png16(&d.join("sim/bright.png"), &bright).unwrap();
+    let text = std::fs::read_to_string(d.join("sim/rig.toml")).unwrap();
+    let text = text.replace(
+        "image = \"captures/r0c1.png\"",
+        "image = \"captures/r0c1.png\"\ndark = \"bright.png\"",
+    );
+    std::fs::write(d.join("sim/dark.toml"), text).unwrap();
+    let o = anaglyph(
+        &["reconstruct", "--rig", "sim/dark.toml", "--out", "rec"],
+        d,
+    );
+    assert_clean_failure(
+        &o,
+        "camera r0c1 cannot be used: its dark frame sim/bright.png is at or above its capture \
+         (sim/captures/r0c1.png)",
+    );
+    // A picture of another size is blamed, not the first camera it differs from.
+    let odd = captures_with(d, "odd", |_| {});
+    let tiny = anaglyph_core::image::Image::new(1, 1, 3, vec![0.5; 3]).unwrap();
+    write_png16(&odd.join("r0c0.png"), &tiny).unwrap();
+    let o = reconstruct(d, "rec", &["--captures", "odd"]);
+    assert_clean_failure(&o, "odd/r0c0.png: 1x1 pixels (expected 128x96");
+    // Calibration files: a malformed map is reported as that map; a file with neither
+    // map nor pose says what it holds.
+    std::fs::create_dir(d.join("calib")).unwrap();
+    for (text, needle) in [
+        (
+            r#"{"homography": [[1, 0, 0], [0, 1, 0]]}"#,
+            "calib/r0c0.json: homography is a 2x3 matrix (expected a 3x3 matrix",
+        ),
+        (
+            r#"{"homogrphy": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}"#,
+            "calib/r0c0.json: the calibration is only homogrphy (expected a plane calibration",
+        ),
+    ] {
+        for row in 0..2 {
+            for col in 0..4 {
+                std::fs::write(d.join(format!("calib/r{row}c{col}.json")), text).unwrap();
+            }
+        }
+        let o = reconstruct(d, "rec", &["--calibration", "calib"]);
+        assert_clean_failure(&o, needle);
+    }
     assert!(!d.join("rec").exists());
 }
 

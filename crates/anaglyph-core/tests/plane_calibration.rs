@@ -131,7 +131,9 @@ fn checkerboard_corners_are_found_within_a_tenth_of_a_pixel() {
         let mut errors = Vec::new();
         for (capture, truth) in board_captures(simulation).iter().zip(&truth) {
             let name = capture.name.clone();
-            let found = detect_board(&capture.image, PATTERN, &name).unwrap();
+            let found = detect_board(&capture.image, PATTERN, &name)
+                .unwrap()
+                .corners;
             // In board order: each corner is nearest its own true corner.
             errors.extend(
                 found

@@ -172,11 +172,21 @@ fn array_captures(
             .as_ref()
             .map(|w| read(w, "white board"))
             .transpose()?;
+        let camera = format!("camera {}", cam.name);
+        let dark_name = |frame_dark: bool| match (frame_dark, &cam.dark, cam.black_level) {
+            (true, _, _) => "dark frame given in frame_darks".to_string(),
+            (false, _, _) if darks[i].is_some() => "dark frame given in darks".to_string(),
+            (false, Some(path), _) => format!("dark frame {}", path.display()),
+            (false, None, level) => format!("black_level {}", level.unwrap_or(0.0)),
+        };
         if let Some(dark) = &capture_dark {
-            dark.subtract_from(&mut capture);
+            let from_frame = matches!(frame_darks.as_ref().map(|d| &d[i]), Some(Some(_)));
+            dark.subtract_from(&mut capture, &camera, "capture", &dark_name(from_frame))
+                .py()?;
         }
         if let (Some(dark), Some(white)) = (&dark, &mut white) {
-            dark.subtract_from(white);
+            dark.subtract_from(white, &camera, "white board", &dark_name(false))
+                .py()?;
         }
         cameras.push(CameraCapture {
             name: cam.name.clone(),

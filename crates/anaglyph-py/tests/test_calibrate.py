@@ -70,3 +70,26 @@ def test_a_capture_without_a_board_is_refused_naming_the_camera(board, tabletop)
         anaglyph.calibrate(tabletop.captures, rig, pattern=(9, 6))
     with pytest.raises(ValueError, match="pattern"):
         anaglyph.calibrate(tabletop.captures, rig, pattern=(1, 6))
+
+
+def test_a_camera_mounted_upside_down_is_mapped_as_turned_and_reported(board):
+    _, rig, sim = board
+    upright = anaglyph.calibrate(sim.captures, rig, pattern=(9, 6))
+    boards = dict(sim.captures)
+    boards["r0c1"] = np.ascontiguousarray(boards["r0c1"][::-1, ::-1])
+    fits = anaglyph.calibrate(boards, rig, pattern=(9, 6))
+    turned = fits["r0c1"]
+    assert turned["seen"] == "turned 180°" and not turned["mirrored"]
+    assert abs(turned["rotation_deg"]) > 179.0
+    assert upright["r0c1"]["seen"] == "upright" and abs(upright["r0c1"]["rotation_deg"]) < 1.0
+    # The turned camera's map is the upright one after turning the pixel back.
+    height, width = boards["r0c1"].shape[:2]
+
+    def apply(h, x, y):
+        p = h @ np.array([x, y, 1.0])
+        return p[:2] / p[2]
+
+    for x, y in [(20.0, 30.0), (128.0, 96.0), (230.0, 170.0)]:
+        expected = apply(upright["r0c1"]["homography"], width - 1 - x, height - 1 - y)
+        np.testing.assert_allclose(apply(turned["homography"], x, y), expected, atol=0.2)
+    assert fits["r0c2"]["seen"] == "upright"

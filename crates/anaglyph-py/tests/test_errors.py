@@ -77,3 +77,12 @@ def test_black_captures_are_refused(tabletop):
     black = {k: np.zeros_like(v) for k, v in tabletop.captures.items()}
     with pytest.raises(anaglyph.AnaglyphError, match="r0c0"):
         anaglyph.reconstruct(tabletop.rig, black, whites=tabletop.whites, progress=False)
+
+
+def test_a_dark_above_its_capture_is_blamed_not_the_capture(tabletop):
+    darks = {k: np.zeros_like(v) for k, v in tabletop.captures.items()}
+    darks["r0c1"] = np.full_like(tabletop.captures["r0c1"], 60000)
+    with pytest.raises(anaglyph.UnusableError, match="camera r0c1 cannot be used: its dark frame "
+                       "given in darks is at or above its capture"):
+        anaglyph.reconstruct(tabletop.rig, tabletop.captures, whites=tabletop.whites, darks=darks,
+                             progress=False)

@@ -41,6 +41,23 @@ fn open_picture(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std
         .map_err(|e| Error::io(path, e))
 }
 
+/// Among pictures that must share one size, the first of another size than most of them
+/// share, and that size (on a tie, the first picture's): the odd one out is blamed
+/// whichever camera comes first. None when all agree.
+pub fn odd_size_out(sizes: &[(usize, usize)]) -> Option<(usize, (usize, usize))> {
+    let count = |size: &(usize, usize)| sizes.iter().filter(|s| *s == size).count();
+    let common = sizes
+        .iter()
+        .fold(None, |best: Option<&(usize, usize)>, s| match best {
+            Some(b) if count(b) >= count(s) => Some(b),
+            _ => Some(s),
+        })?;
+    sizes
+        .iter()
+        .position(|s| s != common)
+        .map(|odd| (odd, *common))
+}
+
 /// Reads the size and channels of a PNG or TIFF from its header and checks them against
 /// [`max_image_pixels`], decoding no pixel: what a command checks before its work.
 pub fn read_image_header(path: &Path) -> Result<ImageHeader> {
@@ -239,6 +256,16 @@ pub fn write_png16(path: &Path, image: &LinearImage) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_odd_size_out_is_the_one_most_pictures_do_not_share() {
+        let (a, b) = ((320, 240), (1, 1));
+        assert_eq!(odd_size_out(&[a, a, a]), None);
+        assert_eq!(odd_size_out(&[b, a, a]), Some((0, a)));
+        assert_eq!(odd_size_out(&[a, b, a]), Some((1, a)));
+        assert_eq!(odd_size_out(&[a, b]), Some((1, a)));
+        assert_eq!(odd_size_out(&[]), None);
+    }
+
     use super::*;
 
     #[test]

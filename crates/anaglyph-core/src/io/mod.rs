@@ -23,8 +23,9 @@ pub use envi::{
 };
 pub use large_buffer::zeroed_large;
 pub use linear_image::{
-    from_u16_sample, from_u8_sample, max_image_pixels, read_image_header, read_linear_image,
-    to_u16_sample, write_png16, ImageHeader, LinearImage, DEFAULT_MAX_IMAGE_PIXELS,
+    from_u16_sample, from_u8_sample, max_image_pixels, odd_size_out, read_image_header,
+    read_linear_image, to_u16_sample, write_png16, ImageHeader, LinearImage,
+    DEFAULT_MAX_IMAGE_PIXELS,
 };
 pub use npy::{
     npy_header, open_npy_rows, read_npy_bool, read_npy_f64, read_npy_float, write_npy_f32,

@@ -22,13 +22,22 @@ use calib_targets_chessboard::{
 /// clean boards its median error went from 0.015 to 0.004 px.
 pub const DETECTION_BLUR: f32 = 1.5;
 
+/// A board found in a capture: its inner corners row by row as the image shows them, and
+/// the grid's size as the image shows it (the pattern's, or turned a quarter).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectedBoard {
+    pub corners: Vec<[f64; 2]>,
+    pub cols: usize,
+    pub rows: usize,
+}
+
 /// The inner corners of `pattern` in `image` (see the module docs); `camera` names the
 /// camera in errors.
 pub fn detect_board(
     image: &GreyImage,
     pattern: BoardPattern,
     camera: &str,
-) -> Result<Vec<[f64; 2]>> {
+) -> Result<DetectedBoard> {
     let grey = stretched_8bit(&gaussian_blur(image, DETECTION_BLUR));
     let view = GrayImageView {
         width: image.width,
@@ -69,7 +78,7 @@ pub fn detect_board(
 fn in_board_order(
     labelled: &[(i32, i32, [f64; 2])],
     pattern: BoardPattern,
-) -> Option<Vec<[f64; 2]>> {
+) -> Option<DetectedBoard> {
     let (u_max, v_max) = labelled
         .iter()
         .fold((-1, -1), |(a, b), &(u, v, _)| (a.max(u), b.max(v)));
@@ -91,7 +100,7 @@ fn in_board_order(
 /// its rows run left to right and follow each other top to bottom in the image, whatever
 /// corner and direction the detector's labels started from: every camera of an array then
 /// gives each corner the same place, and the maps between them stay near translations.
-fn as_the_image_shows(grid: Vec<[f64; 2]>, cols: usize, rows: usize) -> Vec<[f64; 2]> {
+fn as_the_image_shows(grid: Vec<[f64; 2]>, cols: usize, rows: usize) -> DetectedBoard {
     let at = |g: &[[f64; 2]], c: usize, u: usize, v: usize| g[v * c + u];
     // Mean steps along the labels' u and v.
     let step = |g: &[[f64; 2]], c: usize, r: usize, along_u: bool| {
@@ -119,14 +128,19 @@ fn as_the_image_shows(grid: Vec<[f64; 2]>, cols: usize, rows: usize) -> Vec<[f64
     }
     let (ux, _) = step(&grid, cols, rows, true);
     let (_, vy) = step(&grid, cols, rows, false);
-    (0..cols * rows)
+    let corners = (0..cols * rows)
         .map(|i| {
             let (u, v) = (i % cols, i / cols);
             let u = if ux < 0.0 { cols - 1 - u } else { u };
             let v = if vy < 0.0 { rows - 1 - v } else { v };
             at(&grid, cols, u, v)
         })
-        .collect()
+        .collect();
+    DetectedBoard {
+        corners,
+        cols,
+        rows,
+    }
 }
 
 /// `image` between its 1st and 99th percentiles, as 8 bits.
@@ -189,7 +203,8 @@ mod tests {
                         .collect();
                     let pattern = BoardPattern { cols, rows };
                     let ordered = in_board_order(&labelled, pattern).unwrap();
-                    assert_eq!(ordered, expected, "{flip_u} {flip_v} {transpose}");
+                    assert_eq!(ordered.corners, expected, "{flip_u} {flip_v} {transpose}");
+                    assert_eq!((ordered.cols, ordered.rows), (cols, rows));
                 }
             }
         }

@@ -6,6 +6,8 @@
 //!
 //! ```text
 //! checkerboard captures -> corners   ChESS detector (calib-targets), subpixel   board.rs
+//!   -> orient     each camera's corners in the reference's order, by the squares'
+//!                 colours (a camera mounted turned or seeing a mirror)    orientation.rs
 //!   -> fit        normalised DLT (or least-squares affine) onto the reference's corners
 //!   -> check      no fold, the reference's centre seen (Homography::check_frame)
 //!   -> write      rRcC.json (OpenCV FileStorage `homography`), report.json, corners/   output.rs
@@ -15,9 +17,11 @@
 //! Out: a [`PlaneCalibration`].
 
 mod board;
+mod orientation;
 mod output;
 
-pub use board::{detect_board, DETECTION_BLUR};
+pub use board::{detect_board, DetectedBoard, DETECTION_BLUR};
+pub use orientation::{colour_phase, Orientation};
 pub use output::write_plane_calibration;
 
 use crate::io::{read_image_header, read_linear_image, LinearImage};
@@ -123,9 +127,24 @@ pub struct CameraPlaneFit {
     /// reference's, pixels.
     pub residual_rms_px: f64,
     pub residual_max_px: f64,
+    /// The turn of the map at the image centre (degrees, −180 to 180; of its proper part
+    /// when it mirrors): near 0 for cameras mounted alike.
+    pub rotation_deg: f64,
+    /// The map mirrors the image (its Jacobian's determinant is negative).
+    pub mirrored: bool,
+    /// How the camera sees the board against the reference.
+    pub orientation: Orientation,
     /// The detected corners in board order.
     #[serde(skip)]
     pub corners: Vec<[f64; 2]>,
+}
+
+impl CameraPlaneFit {
+    /// A camera mounted otherwise than the reference: its map turns the image by more
+    /// than 90° or mirrors it.
+    pub fn mounted_otherwise(&self) -> bool {
+        self.rotation_deg.abs() > 90.0 || self.mirrored
+    }
 }
 
 /// The calibration of an array to a checkerboard's plane.
@@ -149,20 +168,17 @@ pub fn load_board_captures(rig: &Rig, dir: &Path) -> Result<Vec<BoardCapture>> {
         .iter()
         .map(|c| find_in(dir, &c.name, &PICTURE_EXTENSIONS, "checkerboard capture"))
         .collect::<Result<_>>()?;
-    let mut size = None;
-    for path in &paths {
-        let header = read_image_header(path)?;
-        match size {
-            None => size = Some((header.width, header.height)),
-            Some((w, h)) if (w, h) != (header.width, header.height) => {
-                return Err(Error::captures(
-                    path.display().to_string(),
-                    format!("{}x{} px", header.width, header.height),
-                    format!("{w}x{h} px like the other cameras' captures"),
-                ))
-            }
-            Some(_) => {}
-        }
+    let sizes = paths
+        .iter()
+        .map(|p| read_image_header(p).map(|h| (h.width, h.height)))
+        .collect::<Result<Vec<_>>>()?;
+    if let Some((odd, (w, h))) = crate::io::odd_size_out(&sizes) {
+        let (found_w, found_h) = sizes[odd];
+        return Err(Error::captures(
+            paths[odd].display().to_string(),
+            format!("{found_w}x{found_h} px"),
+            format!("{w}x{h} px like the other cameras' captures"),
+        ));
     }
     rig.cameras
         .iter()
@@ -189,14 +205,16 @@ pub fn calibrate_to_plane(
         .first()
         .ok_or_else(|| Error::captures("plane calibration", "no captures", "one per camera"))?;
     let (width, height) = (first.image.width, first.image.height);
-    if let Some(odd) = captures
+    let sizes: Vec<_> = captures
         .iter()
-        .find(|c| (c.image.width, c.image.height) != (width, height))
-    {
+        .map(|c| (c.image.width, c.image.height))
+        .collect();
+    if let Some((odd, (w, h))) = crate::io::odd_size_out(&sizes) {
+        let capture = &captures[odd].image;
         return Err(Error::captures(
-            format!("checkerboard capture of camera {}", odd.name),
-            format!("{}x{} px", odd.image.width, odd.image.height),
-            format!("{width}x{height} px like the other cameras'"),
+            format!("checkerboard capture of camera {}", captures[odd].name),
+            format!("{}x{} px", capture.width, capture.height),
+            format!("{w}x{h} px like the other cameras'"),
         ));
     }
     let reference_index = captures
@@ -213,16 +231,40 @@ pub fn calibrate_to_plane(
         })?;
     // Detected in parallel, reported in rig order: the first camera without a board is
     // the one named, whichever thread finishes first.
-    let detections: Vec<Result<Vec<[f64; 2]>>> = captures
+    let detections: Vec<Result<DetectedBoard>> = captures
         .par_iter()
         .map(|c| detect_board(&c.image, pattern, &c.name))
         .collect();
-    let corners: Vec<Vec<[f64; 2]>> = detections.into_iter().collect::<Result<_>>()?;
-    let target = &corners[reference_index];
+    let boards: Vec<DetectedBoard> = detections.into_iter().collect::<Result<_>>()?;
+    // The reference's image order is the board's; every camera is matched to it.
+    let reference_board = &boards[reference_index];
+    let grid = (reference_board.cols, reference_board.rows);
+    let reference_phase = colour_phase(
+        &reference_board.corners,
+        grid.0,
+        grid.1,
+        &captures[reference_index].image,
+    );
+    let oriented = captures
+        .iter()
+        .zip(&boards)
+        .map(|(c, board)| {
+            let seen = orientation::SeenGrid {
+                corners: &board.corners,
+                cols: board.cols,
+                rows: board.rows,
+                image: &c.image,
+            };
+            orientation::orient(&seen, grid, reference_phase, &c.name)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let target = &oriented[reference_index].0;
     let cameras = captures
         .iter()
-        .zip(&corners)
-        .map(|(c, found)| fit_camera(c, found, target, model, (width, height)))
+        .zip(oriented.iter())
+        .map(|(c, (found, orientation))| {
+            fit_camera(c, found, orientation, target, model, (width, height))
+        })
         .collect::<Result<_>>()?;
     Ok(PlaneCalibration {
         pattern,
@@ -239,6 +281,7 @@ pub fn calibrate_to_plane(
 fn fit_camera(
     capture: &BoardCapture,
     corners: &[[f64; 2]],
+    orientation: &Orientation,
     target: &[[f64; 2]],
     model: PlaneModel,
     (width, height): (usize, usize),
@@ -261,11 +304,41 @@ fn fit_camera(
     homography.check_frame(width, height, &format!("{name}'s homography"))?;
     let residuals = homography.residuals(corners, target);
     let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
+    let (rotation_deg, mirrored) = turn_at(&homography, width as f64 / 2.0, height as f64 / 2.0);
     Ok(CameraPlaneFit {
         name: capture.name.clone(),
         homography: homography.h,
         residual_rms_px: rms,
         residual_max_px: residuals.iter().copied().fold(0.0, f64::max),
+        rotation_deg,
+        mirrored,
+        orientation: orientation.clone(),
         corners: corners.to_vec(),
     })
+}
+
+/// The turn (degrees) and mirroring of `homography` at (x, y): from its Jacobian there,
+/// by finite differences; a mirrored map's turn is that of its proper part (the Jacobian
+/// with its first column negated).
+fn turn_at(homography: &Homography, x: f64, y: f64) -> (f64, bool) {
+    let step = 1.0;
+    // check_frame has made sure the map is finite over the frame.
+    let at = |x: f64, y: f64| {
+        homography
+            .apply(x, y)
+            .map_or([f64::NAN; 2], |(x, y)| [x, y])
+    };
+    let (right, left) = (at(x + step, y), at(x - step, y));
+    let (down, up) = (at(x, y + step), at(x, y - step));
+    let mut j = [
+        [right[0] - left[0], down[0] - up[0]],
+        [right[1] - left[1], down[1] - up[1]],
+    ];
+    let mirrored = j[0][0] * j[1][1] - j[0][1] * j[1][0] < 0.0;
+    if mirrored {
+        j[0][0] = -j[0][0];
+        j[1][0] = -j[1][0];
+    }
+    let turn = (j[1][0] - j[0][1]).atan2(j[0][0] + j[1][1]).to_degrees();
+    (turn, mirrored)
 }

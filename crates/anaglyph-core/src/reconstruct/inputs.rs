@@ -15,7 +15,7 @@
 use super::dark_level::Dark;
 use super::flat_field::flat_field;
 use crate::image::Image;
-use crate::io::{read_image_header, read_linear_image, ImageHeader, LinearImage};
+use crate::io::{odd_size_out, read_image_header, read_linear_image, ImageHeader, LinearImage};
 use crate::rectify::{Calibration, CameraModel};
 use crate::register::{fill_from_nearest, NormalisedView};
 use crate::rig::{Camera, Rig, SensingMatrix};
@@ -193,16 +193,16 @@ fn dark_of(cam: &Camera, files: &CameraFiles) -> Result<Option<Dark>> {
 /// Every picture's header against its camera's sensor (channels) and against the first
 /// capture (size), before anything is decoded; returns the size.
 fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
-    let mut first: Option<(PathBuf, ImageHeader)> = None;
+    let mut pictures: Vec<(&Path, ImageHeader)> = Vec::new();
     for (cam, files) in rig.cameras.iter().zip(files) {
         let channels = cam.sensor.channel_count();
-        let pictures = [
+        let paths = [
             Some(&files.capture),
             files.white.as_ref(),
             files.dark.as_ref(),
             files.capture_dark.as_ref(),
         ];
-        for path in pictures.into_iter().flatten() {
+        for path in paths.into_iter().flatten() {
             let header = read_image_header(path)?;
             if header.channels != channels {
                 return Err(Error::raster(
@@ -215,27 +215,23 @@ fn check_headers(rig: &Rig, files: &[CameraFiles]) -> Result<(usize, usize)> {
                     ),
                 ));
             }
-            match &first {
-                None => first = Some((path.clone(), header)),
-                Some((first_path, size))
-                    if (size.width, size.height) != (header.width, header.height) =>
-                {
-                    return Err(Error::raster(
-                        path.display().to_string(),
-                        format!("{}x{} pixels", header.width, header.height),
-                        format!(
-                            "{}x{}, as {}",
-                            size.width,
-                            size.height,
-                            first_path.display()
-                        ),
-                    ));
-                }
-                Some(_) => {}
-            }
+            pictures.push((path, header));
         }
     }
-    Ok(first.map_or((0, 0), |(_, h)| (h.width, h.height)))
+    let sizes: Vec<_> = pictures.iter().map(|(_, h)| (h.width, h.height)).collect();
+    if let Some((odd, (width, height))) = odd_size_out(&sizes) {
+        let (path, header) = &pictures[odd];
+        let like = pictures
+            .iter()
+            .find(|(_, h)| (h.width, h.height) == (width, height))
+            .map_or(String::new(), |(p, _)| p.display().to_string());
+        return Err(Error::raster(
+            path.display().to_string(),
+            format!("{}x{} pixels", header.width, header.height),
+            format!("{width}x{height}, as {like} and most of the array's pictures"),
+        ));
+    }
+    Ok(sizes.first().copied().unwrap_or((0, 0)))
 }
 
 impl ArrayCaptures {
@@ -311,17 +307,32 @@ impl ArrayCaptures {
                 Some(path) => Some(Dark::Frame(read_linear_image(path)?)),
                 None => dark.clone(),
             };
-            let read = |path: &Path, dark: &Option<Dark>| -> Result<LinearImage> {
+            let camera = format!("camera {}", cam.name);
+            let read = |path: &Path,
+                        picture: &str,
+                        dark: &Option<Dark>,
+                        dark_file: Option<&PathBuf>|
+             -> Result<LinearImage> {
                 let mut image = read_linear_image(path)?;
                 if let Some(dark) = dark {
-                    dark.subtract_from(&mut image);
+                    let name = match (dark_file, cam.black_level) {
+                        (Some(file), _) => format!("dark frame {}", file.display()),
+                        (None, level) => format!("black_level {}", level.unwrap_or(0.0)),
+                    };
+                    let picture = format!("{picture} ({})", path.display());
+                    dark.subtract_from(&mut image, &camera, &picture, &name)?;
                 }
                 Ok(image)
             };
+            let capture_dark_file = files.capture_dark.as_ref().or(files.dark.as_ref());
             cameras.push(CameraCapture {
                 name: cam.name.clone(),
-                capture: read(&files.capture, &capture_dark)?,
-                white: files.white.as_deref().map(|w| read(w, &dark)).transpose()?,
+                capture: read(&files.capture, "capture", &capture_dark, capture_dark_file)?,
+                white: files
+                    .white
+                    .as_deref()
+                    .map(|w| read(w, "white board", &dark, files.dark.as_ref()))
+                    .transpose()?,
                 exposure: cam.exposure,
                 calibration,
             });

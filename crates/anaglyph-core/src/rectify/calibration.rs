@@ -38,17 +38,22 @@ impl Calibration {
         let storage = read_file_storage(path)?;
         let context = path.display().to_string();
         let plane = ["homography", "affine"].map(|k| storage.contains_key(k));
-        let pose = ["camera_matrix", "rotation_matrix", "translation_vector"]
-            .into_iter()
-            .find(|k| storage.contains_key(*k));
-        if plane[0] && plane[1] {
-            return Err(Error::bad_field(
-                &context,
-                "homography and affine",
-                "both",
-                "one map onto the reference: a homography or an affine map",
-            ));
-        }
+        // Every name CameraModel::from_file_storage reads a pose's parts under.
+        let pose = [
+            "camera_matrix",
+            "cameraMatrix",
+            "K",
+            "rotation_matrix",
+            "R",
+            "rvec",
+            "rotation_vector",
+            "translation_vector",
+            "T",
+            "t",
+            "tvec",
+        ]
+        .into_iter()
+        .find(|k| storage.contains_key(*k));
         if let (true, Some(pose)) = (plane[0] || plane[1], pose) {
             return Err(Error::bad_field(
                 &context,
@@ -66,6 +71,20 @@ impl Calibration {
                 homography,
                 image_size: CameraModel::stated_image_size(&storage),
             }),
+            None if pose.is_none() => Err(Error::bad_field(
+                &context,
+                "the calibration",
+                if storage.is_empty() {
+                    "no numbers or matrices".to_string()
+                } else {
+                    format!(
+                        "only {}",
+                        storage.keys().cloned().collect::<Vec<_>>().join(", ")
+                    )
+                },
+                "a plane calibration (homography or affine) or a pose (camera_matrix, \
+                 rotation_matrix, translation_vector)",
+            )),
             None => CameraModel::from_file_storage(&storage, &context).map(Calibration::Pose),
         }
     }
@@ -110,13 +129,46 @@ mod tests {
         let array = ndarray::Array2::from_shape_vec((3, 3), shift.to_vec()).unwrap();
         ndarray_npy::write_npy(d.join("h.npy"), &array).unwrap();
         assert_eq!(plane(&d.join("h.npy")), expected);
+        // 9 numbers row by row, in .npy (float32 too), JSON and YAML.
         let flat = ndarray::Array1::from_vec(shift.to_vec());
         ndarray_npy::write_npy(d.join("flat.npy"), &flat).unwrap();
-        let error = Calibration::load(&d.join("flat.npy"))
+        assert_eq!(plane(&d.join("flat.npy")), expected);
+        ndarray_npy::write_npy(d.join("f32.npy"), &array.mapv(|v| v as f32)).unwrap();
+        assert_eq!(plane(&d.join("f32.npy")), expected);
+        std::fs::write(
+            d.join("flat.json"),
+            r#"{"homography": [1, 0, 13, 0, 1, -2.5, 0, 0, 1]}"#,
+        )
+        .unwrap();
+        assert_eq!(plane(&d.join("flat.json")), expected);
+        std::fs::write(
+            d.join("flat.yml"),
+            "homography: [1, 0, 13, 0, 1, -2.5, 0, 0, 1]\n",
+        )
+        .unwrap();
+        assert_eq!(plane(&d.join("flat.yml")), expected);
+        std::fs::write(
+            d.join("rows.yml"),
+            "homography: [[1, 0, 13], [0, 1, -2.5], [0, 0, 1]]\n",
+        )
+        .unwrap();
+        assert_eq!(plane(&d.join("rows.yml")), expected);
+        let four = ndarray::Array1::from_vec(vec![1.0, 0.0, 0.0, 1.0]);
+        ndarray_npy::write_npy(d.join("four.npy"), &four).unwrap();
+        let error = Calibration::load(&d.join("four.npy"))
             .unwrap_err()
             .to_string();
         assert!(
-            error.contains("flat.npy") && error.contains("3x3"),
+            error.contains("four.npy") && error.contains("3x3"),
+            "{error}"
+        );
+        let integers = ndarray::Array2::<i64>::eye(3);
+        ndarray_npy::write_npy(d.join("int.npy"), &integers).unwrap();
+        let error = Calibration::load(&d.join("int.npy"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("int.npy") && error.contains("i8") && error.contains("float64"),
             "{error}"
         );
         std::fs::write(d.join("bare.json"), "[[1, 0, 13], [0, 1, -2.5], [0, 0, 1]]").unwrap();
@@ -140,19 +192,55 @@ mod tests {
             let error = Calibration::load(&d.join(name)).unwrap_err().to_string();
             assert!(error.contains(name) && error.contains(needle), "{error}");
         }
-        std::fs::write(d.join("bad.json"), r#"{"homography": [[1, 0], [0, 1]]}"#).unwrap();
-        let error = Calibration::load(&d.join("bad.json"))
+        // A malformed map is reported as that map, with the shape found.
+        for (name, text, needle) in [
+            (
+                "bad.json",
+                r#"{"homography": [[1, 0], [0, 1]]}"#,
+                "homography is a 2x2 matrix",
+            ),
+            (
+                "two.json",
+                r#"{"homography": [[1, 0, 0], [0, 1, 0]]}"#,
+                "under 'affine'",
+            ),
+            (
+                "number.json",
+                r#"{"homography": 3}"#,
+                "homography is the number 3",
+            ),
+            (
+                "short.json",
+                r#"{"affine": [1, 0, 0, 1]}"#,
+                "affine is a 1x4 matrix",
+            ),
+        ] {
+            std::fs::write(d.join(name), text).unwrap();
+            let error = Calibration::load(&d.join(name)).unwrap_err().to_string();
+            assert!(error.contains(name) && error.contains(needle), "{error}");
+        }
+        // A file with neither map nor pose names what it holds and what was expected.
+        std::fs::write(
+            d.join("typo.json"),
+            r#"{"homogrphy": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}"#,
+        )
+        .unwrap();
+        let error = Calibration::load(&d.join("typo.json"))
             .unwrap_err()
             .to_string();
         assert!(
-            error.contains("bad.json") && error.contains("homography"),
+            error.contains("only homogrphy") && error.contains("a plane calibration (homography"),
             "{error}"
         );
-        // A file with neither is read as a pose (and needs its camera matrix).
-        std::fs::write(d.join("pose.json"), r#"{"image_width": 640}"#).unwrap();
+        // A partial pose is read as a pose (and needs its camera matrix).
+        std::fs::write(
+            d.join("pose.json"),
+            r#"{"R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}"#,
+        )
+        .unwrap();
         let error = Calibration::load(&d.join("pose.json"))
             .unwrap_err()
             .to_string();
-        assert!(error.contains("camera_matrix"), "{error}");
+        assert!(error.contains("camera_matrix (K) is absent"), "{error}");
     }
 }

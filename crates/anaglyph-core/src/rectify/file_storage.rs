@@ -134,10 +134,7 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
                     .collect::<Result<Vec<f64>>>()?;
                 Some(matrix(name, size("rows")?, size("cols")?, data, context)?)
             }
-            // A plain array of rows, e.g. `"homography": [[1, 0, 4], [0, 1, 0], [0, 0, 1]]`.
-            serde_json::Value::Array(rows) if rows.iter().all(|r| r.is_array()) => {
-                Some(rows_matrix(name, rows, context)?)
-            }
+            serde_json::Value::Array(values) => array_matrix(name, values, context)?,
             // Strings, lists of views and other nodes are not needed for calibration.
             _ => None,
         };
@@ -146,6 +143,27 @@ pub fn parse_json(text: &str, context: &str) -> Result<FileStorage> {
         }
     }
     Ok(out)
+}
+
+/// A matrix given as a plain array: of rows (`[[1, 0, 4], [0, 1, 0], [0, 0, 1]]`) or of
+/// numbers (`[k1, k2, p1, p2]`, a 1×n matrix). None for other arrays (lists of strings,
+/// of views), which calibration does not need.
+fn array_matrix(
+    name: &str,
+    values: &[serde_json::Value],
+    context: &str,
+) -> Result<Option<StoredValue>> {
+    if values.is_empty() {
+        return Ok(None);
+    }
+    if values.iter().all(|r| r.is_array()) {
+        return rows_matrix(name, values, context).map(Some);
+    }
+    if values.iter().all(|v| v.is_number()) {
+        let data = values.iter().filter_map(|v| v.as_f64()).collect::<Vec<_>>();
+        return matrix(name, 1, data.len(), data, context).map(Some);
+    }
+    Ok(None)
 }
 
 /// A matrix given as a JSON array of equally long rows of numbers.
@@ -282,6 +300,20 @@ pub fn parse_yaml(text: &str, context: &str) -> Result<FileStorage> {
             out.insert(name.to_string(), matrix(name, rows, cols, data, context)?);
         } else if let Ok(value) = rest.trim_matches('"').parse::<f64>() {
             out.insert(name.to_string(), StoredValue::Number(value));
+        } else if rest.starts_with('[') {
+            // A flow list on one line: `[k1, k2, p1, p2]` or `[[1, 0, 4], [0, 1, 0], ...]`.
+            let Ok(serde_json::Value::Array(values)) = serde_json::from_str(rest) else {
+                return Err(Error::Parse {
+                    context: context.into(),
+                    line: number,
+                    message: format!(
+                        "'{name}': '{rest}' is not a list of numbers or of rows of numbers"
+                    ),
+                });
+            };
+            if let Some(stored) = array_matrix(name, &values, context)? {
+                out.insert(name.to_string(), stored);
+            }
         }
     }
     Ok(out)

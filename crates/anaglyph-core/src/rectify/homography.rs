@@ -74,15 +74,12 @@ impl Homography {
     /// Reads a `.npy` file of 3×3 (homography) or 2×3 (affine) values.
     pub fn read_npy(path: &Path) -> Result<Self> {
         let context = path.display().to_string();
-        let array: ndarray::ArrayD<f64> =
-            ndarray_npy::read_npy(path).map_err(|e| Error::Decode {
-                file: path.to_path_buf(),
-                message: e.to_string(),
-            })?;
-        let values: Vec<f64> = array.iter().copied().collect();
-        match array.shape() {
-            [3, 3] => Self::new(&values, &context),
-            [2, 3] => Self::from_affine(&values, &context),
+        // float32 or float64 in either byte order; other element types are refused
+        // naming the type found.
+        let array = crate::io::read_npy_f64(path)?;
+        match array.shape.as_slice() {
+            [3, 3] | [9] => Self::new(&array.data, &context),
+            [2, 3] | [6] => Self::from_affine(&array.data, &context),
             shape => Err(Error::bad_field(
                 &context,
                 "array",
@@ -99,18 +96,39 @@ impl Homography {
         context: &str,
     ) -> Result<Option<Self>> {
         let matrix = |v: &StoredValue| match v {
-            StoredValue::Matrix { rows, cols, data } => Some((*rows, *cols, data.clone())),
-            StoredValue::Number(_) => None,
+            StoredValue::Matrix { rows, cols, data } => Ok((*rows, *cols, data.clone())),
+            StoredValue::Number(n) => Err(format!("the number {n}")),
         };
+        let shape_of = |found: std::result::Result<(usize, usize, Vec<f64>), String>| {
+            found.map_or_else(|n| n, |(r, c, _)| format!("a {r}x{c} matrix"))
+        };
+        // A flat list of 9 (6) numbers is the matrix's rows one after the other.
         match (homography.map(matrix), affine.map(matrix)) {
-            (Some(Some((3, 3, data))), _) => Self::new(&data, context).map(Some),
-            (None, Some(Some((2, 3, data)))) => Self::from_affine(&data, context).map(Some),
+            (Some(Ok((3, 3, data) | (1, 9, data) | (9, 1, data))), None) => {
+                Self::new(&data, context).map(Some)
+            }
+            (None, Some(Ok((2, 3, data) | (1, 6, data) | (6, 1, data)))) => {
+                Self::from_affine(&data, context).map(Some)
+            }
             (None, None) => Ok(None),
-            (h, _) => Err(Error::bad_field(
+            (Some(_), Some(_)) => Err(Error::bad_field(
                 context,
-                if h.is_some() { "homography" } else { "affine" },
-                "not a matrix of the right size".to_string(),
-                "homography: 3x3, affine: 2x3",
+                "homography and affine",
+                "both",
+                "one map onto the reference: a homography or an affine map",
+            )),
+            (Some(found), None) => Err(Error::bad_field(
+                context,
+                "homography",
+                shape_of(found),
+                "a 3x3 matrix (rows of 3 numbers, or 9 numbers row by row; a 2x3 map goes \
+                 under 'affine')",
+            )),
+            (None, Some(found)) => Err(Error::bad_field(
+                context,
+                "affine",
+                shape_of(found),
+                "a 2x3 matrix (rows of 3 numbers, or 6 numbers row by row)",
             )),
         }
     }

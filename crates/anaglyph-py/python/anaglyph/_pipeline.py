@@ -146,8 +146,10 @@ def calibrate(
     """Each camera's map onto the reference camera through the plane of a checkerboard
     with ``pattern=(cols, rows)`` inner corners that every camera sees in ``boards``.
 
-    Returns per camera ``homography`` (3x3), ``residual_rms_px``, ``residual_max_px`` and
-    ``corners``. Pass ``{name: fit["homography"] ...}`` as ``reconstruct(calibration=...)``.
+    Returns per camera ``homography`` (3x3), ``residual_rms_px``, ``residual_max_px``,
+    ``rotation_deg`` and ``mirrored`` (the map's turn at the image centre and whether it
+    mirrors: a camera mounted otherwise than the reference), ``seen`` (``"upright"``,
+    ``"turned 180°"``, ...) and ``corners``. Pass ``{name: fit["homography"] ...}`` as ``reconstruct(calibration=...)``.
     """
     cols, rows = pattern
     return _core.calibrate(dict(boards), _rig(rig), (int(cols), int(rows)), reference=reference, model=model)
