@@ -326,19 +326,12 @@ fn print_scores(
     let mut reference = None;
     for (i, view) in field.views.iter().enumerate() {
         let truth = &simulation.views[i].truth;
-        let all = score_cube(truth, &view.reflectance.data, width, height, nb, None)?;
+        let all = score_cube(truth, &view.cube()?.data, width, height, nb, None)?;
         psnr_sum += all.psnr;
         ssim_sum += all.ssim;
         if i == 0 {
             let mask = seen_by_all_views(&simulation.disparity_maps(), geometry, 0);
-            let seen = score_cube(
-                truth,
-                &view.reflectance.data,
-                width,
-                height,
-                nb,
-                Some(&mask),
-            )?;
+            let seen = score_cube(truth, &view.cube()?.data, width, height, nb, Some(&mask))?;
             reference = Some((all, seen));
         }
     }

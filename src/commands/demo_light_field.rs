@@ -75,7 +75,7 @@ fn scores(
     for (view, truth) in field.views.iter().zip(&simulation.views) {
         all.push(score_cube(
             &truth.truth,
-            &view.reflectance.data,
+            &view.cube()?.data,
             w,
             h,
             nb,
@@ -85,7 +85,7 @@ fn scores(
     let mask = seen_by_all_views(&maps, geometry, 0);
     let seen = score_cube(
         &simulation.views[0].truth,
-        &field.views[0].reflectance.data,
+        &field.views[0].cube()?.data,
         w,
         h,
         nb,

@@ -96,3 +96,96 @@ fn a_monochrome_narrow_band_array_gets_registered_stacks_close_to_the_true_ones(
     assert_clean_failure(&o, "probe");
     assert!(!d.join("p").exists());
 }
+
+/// A registration-only run needs no radiometry: the rig without white boards or exposures
+/// registers as well as with them, keeps each capture as recorded (its own channel of
+/// its own view is the capture), runs no spectral stage and says so in its manifest; a
+/// cube from that rig is refused, naming what registration alone does not need.
+#[test]
+fn a_registration_only_run_needs_no_white_board_or_exposure() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulate_monochrome(d);
+    let text = std::fs::read_to_string(d.join("sim/rig.toml")).unwrap();
+    let bare: String = text
+        .lines()
+        .filter(|l| !l.starts_with("white =") && !l.starts_with("exposure ="))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    assert!(!bare.contains("white =") && bare.contains("image ="));
+    std::fs::write(d.join("sim/bare.toml"), bare).unwrap();
+    let run = |rig: &str, output: &str, out: &str| {
+        let rig = format!("sim/{rig}.toml");
+        anaglyph(
+            &[
+                "reconstruct",
+                "--rig",
+                &rig,
+                "--output",
+                output,
+                "--out",
+                out,
+            ],
+            d,
+        )
+    };
+    let o = run("bare", "registered", "bare");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run("rig", "registered", "white");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let manifest = |run: &str| -> serde_json::Value {
+        let text = std::fs::read_to_string(d.join(format!("{run}/manifest.json"))).unwrap();
+        serde_json::from_str(&text).unwrap()
+    };
+    for run in ["bare", "white"] {
+        let m = manifest(run);
+        assert_eq!(
+            m["stages"],
+            serde_json::json!(["calibration", "registration", "warping"]),
+            "{run}"
+        );
+        assert_eq!(m["solve_stages"], serde_json::json!([]), "{run}");
+        assert!(!d.join(format!("{run}/views")).exists());
+    }
+    let methods: Vec<String> = manifest("bare")["calibration"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["method"].as_str().unwrap().to_string())
+        .collect();
+    assert!(methods.iter().all(|m| m == "none"), "{methods:?}");
+    for (k, view) in VIEWS.iter().enumerate() {
+        let stack = read_envi(&d.join(format!("bare/registered/{view}.hdr"))).unwrap();
+        let own: Vec<f32> = stack
+            .image
+            .data
+            .iter()
+            .skip(k)
+            .step_by(6)
+            .copied()
+            .collect();
+        let capture =
+            anaglyph_core::io::read_linear_image(&d.join(format!("sim/captures/{view}.png")))
+                .unwrap();
+        assert_eq!(own, capture.data, "{view}");
+        // The same maps as the normalised run's, but for a handful of pixels.
+        let map = |run: &str| {
+            anaglyph_core::io::read_pfm(&d.join(format!("{run}/disparity/{view}.pfm")))
+                .unwrap()
+                .data
+        };
+        let (a, b) = (map("bare"), map("white"));
+        let apart = a
+            .iter()
+            .zip(&b)
+            .filter(|(x, y)| (*x - *y).abs() > 1.0 || (*x - *y).is_nan())
+            .count();
+        assert!(apart * 100 < a.len(), "{view}: {apart} of {}", a.len());
+    }
+    let o = run("bare", "cube", "cube");
+    assert_clean_failure(
+        &o,
+        "a registration-only run (--output registered) needs neither",
+    );
+    assert!(!d.join("cube").exists());
+}

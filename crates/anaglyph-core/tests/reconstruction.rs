@@ -96,7 +96,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
     let maps = simulation.disparity_maps();
     let mask = seen_by_all_views(&maps, &ArrayGeometry::of_rig(rig), 0);
     let truth = &simulation.views[0].truth;
-    let estimate = &field.views[0].reflectance.data;
+    let estimate = &field.views[0].cube().unwrap().data;
     let all = score_cube(truth, estimate, w, h, nb, None).unwrap();
     let seen = score_cube(truth, estimate, w, h, nb, Some(&mask)).unwrap();
     let mean = field
@@ -104,7 +104,7 @@ fn measure(field: &LightField, simulation: &Simulation, rig: &Rig) -> (f64, f64,
         .iter()
         .zip(&simulation.views)
         .map(|(v, s)| {
-            score_cube(&s.truth, &v.reflectance.data, w, h, nb, None)
+            score_cube(&s.truth, &v.cube().unwrap().data, w, h, nb, None)
                 .unwrap()
                 .psnr
         })
@@ -352,9 +352,16 @@ fn the_scene_prior_improves_the_pixels_some_cameras_miss() {
             let seen = seen_by_all_views(&simulation.disparity_maps(), &geometry, i);
             let some_miss: Vec<bool> = seen.iter().map(|s| !s).collect();
             let truth = &simulation.views[i].truth;
-            let all = score_cube(truth, &view.reflectance.data, w, h, nb, None).unwrap();
-            let part =
-                score_cube(truth, &view.reflectance.data, w, h, nb, Some(&some_miss)).unwrap();
+            let all = score_cube(truth, &view.cube().unwrap().data, w, h, nb, None).unwrap();
+            let part = score_cube(
+                truth,
+                &view.cube().unwrap().data,
+                w,
+                h,
+                nb,
+                Some(&some_miss),
+            )
+            .unwrap();
             missed.push((all.psnr, part.psnr));
         }
         scores.push(missed);

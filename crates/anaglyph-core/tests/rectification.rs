@@ -201,7 +201,7 @@ fn true_disparities_hold_again_after_rectification() {
             let t = simulation.views.iter().find(|s| s.name == v.name).unwrap();
             score_cube(
                 &t.truth,
-                &v.reflectance.data,
+                &v.cube().unwrap().data,
                 WIDTH,
                 HEIGHT,
                 field.bands.len(),

@@ -36,7 +36,7 @@ fn frame(rig: &Rig, preset: &str, k: u64) -> Simulation {
 /// r0c0's PSNR against the truth.
 fn psnr(field: &LightField, simulation: &Simulation) -> f64 {
     let (w, h, nb) = (field.width, field.height, field.bands.len());
-    let estimate = &field.views[0].reflectance.data;
+    let estimate = &field.views[0].cube().unwrap().data;
     score_cube(&simulation.views[0].truth, estimate, w, h, nb, None)
         .unwrap()
         .psnr
@@ -110,7 +110,7 @@ fn a_cut_reuses_nothing() {
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     for (a, b) in after_cut.views.iter().zip(&alone.views) {
         assert!(
-            bits(&a.reflectance.data) == bits(&b.reflectance.data),
+            bits(&a.cube().unwrap().data) == bits(&b.cube().unwrap().data),
             "view {}",
             a.name
         );

@@ -90,7 +90,11 @@ fn frames_written_to_a_store_read_back_bit_for_bit_and_a_rerun_resumes() {
             };
             let bits =
                 |values: &[f32]| -> Vec<u32> { values.iter().map(|x| x.to_bits()).collect() };
-            assert_eq!(at(&cube, w * h * nb), bits(&view.reflectance.data), "{k}");
+            assert_eq!(
+                at(&cube, w * h * nb),
+                bits(&view.cube().unwrap().data),
+                "{k}"
+            );
             assert_eq!(at(&disparity, w * h), bits(&view.disparity.data), "{k}");
             assert_eq!(
                 at(&registered, w * h * channels),

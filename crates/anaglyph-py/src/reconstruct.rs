@@ -392,8 +392,8 @@ pub fn reconstruct<'py>(
     let views = PyDict::new(py);
     for view in field.views.into_iter().filter(|_| arrays) {
         let v = PyDict::new(py);
-        if options.output.cubes() {
-            v.set_item("cube", cube_array(py, view.reflectance)?)?;
+        if let Some(cube) = view.reflectance {
+            v.set_item("cube", cube_array(py, cube)?)?;
         }
         v.set_item("disparity", array(py, &[h, w], view.disparity.data)?)?;
         v.set_item("cameras_seeing", image_array(py, view.cameras_seeing)?)?;

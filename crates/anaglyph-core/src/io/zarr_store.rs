@@ -379,7 +379,7 @@ impl LightFieldStore {
         let mut shards: Vec<(&Array<FilesystemStore>, usize, Shard<'_>)> = Vec::new();
         for (v, view) in views.iter().enumerate() {
             if let Some(array) = &reflectance {
-                shards.push((array, v, Shard::F32(&view.reflectance.data)));
+                shards.push((array, v, Shard::F32(&view.cube()?.data)));
             }
             if let Some(array) = &registered {
                 let stack = view.registered.as_ref().ok_or(Error::StageDependency {

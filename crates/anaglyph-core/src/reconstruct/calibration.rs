@@ -29,7 +29,10 @@ pub(super) fn calibrate_array(
     let clock = std::time::Instant::now();
     let sensing = SensingMatrix::of_rig(rig)?;
     let condition_number = sensing.condition_number()?;
-    if condition_number > ILL_CONDITIONED_WARNING && rig.file.reconstruction.lambda == 0.0 {
+    if settings.spectra
+        && condition_number > ILL_CONDITIONED_WARNING
+        && rig.file.reconstruction.lambda == 0.0
+    {
         log.warnings.push(format!(
             "cond(C) = {condition_number:.3e} with lambda = 0: the solve amplifies noise; use lambda > 0"
         ));
@@ -39,6 +42,7 @@ pub(super) fn calibrate_array(
         &sensing,
         settings.white_reflectance,
         settings.saturation_level,
+        settings.spectra,
     )?;
     for (record, cam) in calibration.iter().zip(&captures.cameras) {
         log.warnings

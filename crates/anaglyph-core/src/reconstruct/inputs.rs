@@ -63,7 +63,8 @@ pub struct ArrayCaptures {
 pub struct CameraCalibration {
     /// The camera's name (see [`crate::rig::Camera::name`]).
     pub name: String,
-    /// "white board" or "exposure metadata".
+    /// "white board", "exposure metadata", or "none" (a registration-only run without
+    /// either: the capture as recorded, less its dark level).
     pub method: &'static str,
     /// Capture units per sensing-matrix unit, per channel.
     pub gain: Vec<f64>,
@@ -472,6 +473,7 @@ pub fn calibrate(
     sensing: &SensingMatrix,
     white_reflectance: f64,
     saturation_level: f32,
+    radiometry_required: bool,
 ) -> Result<(Vec<NormalisedView>, Vec<CameraCalibration>)> {
     if !(white_reflectance > 0.0 && white_reflectance <= 1.0) {
         return Err(Error::out_of_range(
@@ -518,12 +520,14 @@ pub fn calibrate(
                 ("white board", gain, Some(variation))
             }
             (None, Some(exposure)) => ("exposure metadata", vec![exposure; ch], None),
+            (None, None) if !radiometry_required => ("none", vec![1.0; ch], None),
             (None, None) => {
                 return Err(Error::captures(
                     &name,
                     "no white board capture and no exposure metadata",
                     "a white board (rig `white` or --white) or the camera's `exposure` with \
-                     --illuminant",
+                     --illuminant; a registration-only run (--output registered) needs \
+                     neither",
                 ))
             }
         };
@@ -555,7 +559,8 @@ pub fn calibrate(
                     let shape = field.as_ref().map_or(1.0, |f| f64::from(f[i]));
                     let value = v as f64 / (gain[i % ch] * shape);
                     measured += 1;
-                    brighter += usize::from(value > responses[i % ch]);
+                    // Brighter than a perfect white: not known without radiometry.
+                    brighter += usize::from(method != "none" && value > responses[i % ch]);
                     value as f32
                 }
             })

@@ -112,8 +112,9 @@ pub type Progress<'a> = dyn Fn(Stage, usize, usize) + Sync + 'a;
 pub struct ReconstructedView {
     /// The camera's name (see [`crate::rig::Camera::name`]).
     pub name: String,
-    /// Reflectance, a channel per band, NaN where nothing was measured.
-    pub reflectance: Image<f32>,
+    /// Reflectance, a channel per band, NaN where nothing was measured (None: a
+    /// registration-only run, [`PipelineSettings::spectra`] off).
+    pub reflectance: Option<Image<f32>>,
     /// Disparity per column step of the array (the simulator's convention), NaN where
     /// unknown.
     pub disparity: DisparityMap,
@@ -139,12 +140,23 @@ pub struct ReconstructedView {
     pub pair_agreements: Vec<PairAgreement>,
 }
 
+impl ReconstructedView {
+    /// The reflectance cube; an error in a registration-only run, which solves none.
+    pub fn cube(&self) -> Result<&Image<f32>> {
+        self.reflectance.as_ref().ok_or(Error::StageDependency {
+            stage: "reflectance output",
+            needs: "the view's spectral solve",
+            why: "the run registered only (output registered)",
+        })
+    }
+}
+
 /// The multispectral light field of an array.
 #[derive(Debug, Clone)]
 pub struct LightField {
     pub width: usize,
     pub height: usize,
-    /// Band centres, nm.
+    /// Band centres, nm (empty: a registration-only run).
     pub bands: Vec<f64>,
     pub views: Vec<ReconstructedView>,
     /// The camera channel of each row of C, e.g. `r0c1:R` (the bands of a registered
@@ -157,8 +169,12 @@ pub struct LightField {
     pub search_range: Option<SearchRange>,
     /// The stages of every view's solve and their settings.
     pub solve: SolveSettings,
-    /// The names of the solve's stages that ran, in order.
+    /// The names of the solve's stages that ran, in order (none in a registration-only
+    /// run).
     pub solve_stages: Vec<&'static str>,
+    /// The stages of the array that ran, in order: rectification (for calibrated
+    /// cameras), calibration, registration, warping, then the solve's stages.
+    pub stages: Vec<&'static str>,
     /// The common signals registration matched by (None: luminance, or no registration).
     pub common_signals: Option<Vec<CommonSignal>>,
     pub condition_number: f64,
@@ -294,17 +310,35 @@ fn reconstruct_frame(
         views: carried_views,
     });
 
+    let solve_stages = match settings.spectra {
+        true => plan.names(),
+        false => Vec::new(),
+    };
+    let stages = [
+        rectified.is_some().then_some("rectification"),
+        Some("calibration"),
+        Some("registration"),
+        Some("warping"),
+    ]
+    .into_iter()
+    .flatten()
+    .chain(solve_stages.iter().copied())
+    .collect();
     let field = LightField {
         width: captures.width,
         height: captures.height,
-        bands: rig.reconstruction_shape()?.wavelengths(),
+        bands: match settings.spectra {
+            true => rig.reconstruction_shape()?.wavelengths(),
+            false => Vec::new(),
+        },
         views,
         channel_labels: calibrated.sensing.row_labels.clone(),
         calibration: calibrated.calibration,
         rectification: rectified.map(|r| r.plan),
         search_range: registered.search_range,
         solve: settings.solve,
-        solve_stages: plan.names(),
+        solve_stages,
+        stages,
         common_signals: registered.common_signals,
         condition_number: calibrated.condition_number,
         timings: log.timings,

@@ -176,6 +176,7 @@ impl ReconstructOptions {
         settings.registration = self.registration;
         settings.disparities = Disparities::Search(self.disp_range);
         settings.keep_registered = self.output.registered();
+        settings.spectra = self.output.cubes();
         settings.white_reflectance = self.white_reflectance;
         settings.saturation_level = self.saturation;
         settings.demux.solver = self.solver;

@@ -87,6 +87,8 @@ struct Manifest<'a> {
     calibration: &'a [super::CameraCalibration],
     rectification: Option<&'a crate::rectify::Rectification>,
     search_range: Option<&'a crate::register::SearchRange>,
+    /// The stages that ran, in order (a registration-only run lists no spectral stage).
+    stages: &'a [&'static str],
     /// What a frame of a sequence took from the previous frame (absent: a single frame).
     #[serde(skip_serializing_if = "Option::is_none")]
     temporal_reuse: Option<&'a super::ReuseReport>,
@@ -203,9 +205,9 @@ pub fn write_light_field(
         }
         write_cube(dir, &name, field, view)?;
         let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
-        pseudo_colour(&view.reflectance, &field.bands, &camera.sensor)?.save(&pseudo)?;
+        pseudo_colour(view.cube()?, &field.bands, &camera.sensor)?.save(&pseudo)?;
         let srgb = dir.join(format!("preview/{name}_srgb.png"));
-        srgb_preview(&view.reflectance, &field.bands)?.save(&srgb)?;
+        srgb_preview(view.cube()?, &field.bands)?.save(&srgb)?;
         if !options.probes.is_empty() {
             write_probes(dir, &name, field, view, options)?;
         }
@@ -240,7 +242,7 @@ fn write_cube(dir: &Path, name: &str, field: &LightField, view: &ReconstructedVi
     write_envi(
         &path,
         &EnviCube {
-            image: view.reflectance.clone(),
+            image: view.cube()?.clone(),
             wavelengths: Some(field.bands.clone()),
             band_names: None,
         },
@@ -288,17 +290,13 @@ fn write_probes(
             });
         }
     }
+    let cube = view.cube()?;
     let probes: Vec<Probe> = options
         .probes
         .iter()
         .map(|&(x, y)| Probe {
             label: format!("({x}, {y})"),
-            estimate: view
-                .reflectance
-                .pixel(x, y)
-                .iter()
-                .map(|&v| v as f64)
-                .collect(),
+            estimate: cube.pixel(x, y).iter().map(|&v| v as f64).collect(),
             truth: truth
                 .as_ref()
                 .map(|t| (0..nb).map(|b| t.at(x, y, b) as f64).collect()),
@@ -334,6 +332,7 @@ fn manifest<'a>(
         calibration: &field.calibration,
         rectification: field.rectification.as_ref(),
         search_range: field.search_range.as_ref(),
+        stages: &field.stages,
         temporal_reuse: field.reuse.as_ref(),
         solve_stages: field.solve_stages.clone(),
         refinement: field.solve.refinement,

@@ -136,6 +136,10 @@ pub struct PipelineSettings<'a> {
     /// the view, NaN where the camera does not see the point
     /// ([`super::ReconstructedView::registered`]).
     pub keep_registered: bool,
+    /// Solve each view's reflectance. Off, the run registers only: a camera without a
+    /// white board or exposure keeps its capture as recorded (less its dark level), and no
+    /// spectral stage (demultiplexing, scene prior, refinement) runs.
+    pub spectra: bool,
     /// Set by the caller (another thread, or the progress callback) to stop the run at the
     /// next stage boundary (before rectification, calibration, registration and each
     /// view) with [`Error::Cancelled`]; nothing is returned half done.
@@ -163,6 +167,7 @@ impl<'a> PipelineSettings<'a> {
             solve: preset.solve(),
             views: None,
             keep_registered: false,
+            spectra: true,
             cancel: None,
         }
     }
@@ -205,6 +210,13 @@ impl<'a> PipelineSettings<'a> {
         }
         if let Disparities::Search(DisparitySearch::Fixed(range)) = self.disparities {
             DisparityRange::new(range.min, range.max)?;
+        }
+        if !self.spectra && !self.keep_registered {
+            return Err(Error::setting(
+                "output",
+                "neither spectra nor registered stacks",
+                "spectra, registered stacks or both",
+            ));
         }
         self.solve.validate()
     }

@@ -12,7 +12,7 @@ use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
 use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
 use crate::rig::Rig;
-use crate::solve::{KeptPixels, SolveContext, SolvePlan, ViewSolve};
+use crate::solve::{KeptPixels, SolveContext, SolvePlan, SolveReport, ViewSolve};
 use crate::Result;
 use std::time::Instant;
 
@@ -73,8 +73,11 @@ impl<'a> ViewPass<'a> {
         log: &mut RunLog,
         progress: &Progress<'_>,
     ) -> Result<(Vec<ReconstructedView>, Vec<CarriedView>)> {
-        let names = self.plan.names();
-        let mut seconds = vec![0.0; names.len() + 1];
+        let names = match self.settings.spectra {
+            true => self.plan.names(),
+            false => Vec::new(),
+        };
+        let mut seconds = vec![0.0; self.plan.names().len() + 1];
         let mut views = Vec::with_capacity(requested.len());
         let mut used = Vec::with_capacity(requested.len());
         for (k, &v) in requested.iter().enumerate() {
@@ -126,7 +129,23 @@ impl<'a> ViewPass<'a> {
             }
             false => None,
         };
-        let (solve, next) = self.solve(v, measurements, disputed, previous, &mut seconds[1..])?;
+        // A registration-only run stops here: no spectral stage.
+        let (reflectance, report, next) = match self.settings.spectra {
+            true => {
+                let (solve, next) =
+                    self.solve(v, measurements, disputed, previous, &mut seconds[1..])?;
+                let cube = Image::new(w, h, solve.knots.len(), solve.spectra)?;
+                (Some(cube), solve.report, next)
+            }
+            false => (
+                None,
+                SolveReport::default(),
+                CarriedView {
+                    prior: None,
+                    pixels: None,
+                },
+            ),
+        };
         let cam = &self.rig.cameras[v];
         let agreement = self.registered.agreement[v];
         if visibility.seen_by_all < LOW_VISIBILITY_WARNING && self.rig.cameras.len() > 1 {
@@ -147,12 +166,12 @@ impl<'a> ViewPass<'a> {
         }
         let view = ReconstructedView {
             name: cam.name.clone(),
-            reflectance: Image::new(w, h, solve.knots.len(), solve.spectra)?,
+            reflectance,
             disparity: self.registered.disparities[v].clone(),
             neighbour_agreement: agreement.is_finite().then_some(agreement),
             visibility,
             cameras_seeing,
-            solve: solve.report,
+            solve: report,
             moved_to_planes: self.registered.moved_to_planes.as_ref().map(|m| m[v]),
             registered,
             pair_agreements: self.registered.pair_agreements[v].clone(),

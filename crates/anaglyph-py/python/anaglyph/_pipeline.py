@@ -330,7 +330,10 @@ def reconstruct(
     ``calibration``: per camera a 3x3 homography onto the reference camera or a
     calibration file, or the folder ``anaglyph calibrate`` wrote. ``views``: the cameras
     whose views to reconstruct (default all). ``preset``: ``default``, ``fast`` or
-    ``paper``. ``output``: ``cube``, ``registered`` or ``both``. ``disp_range``: ``"auto"``
+    ``paper``. ``output``: ``cube``, ``registered`` or ``both``; ``registered`` alone
+    registers only: it needs no white board or exposure (a camera without either keeps
+    its capture as recorded, ``manifest["calibration"]`` says which) and runs no spectral
+    stage (``manifest["stages"]``). ``disp_range``: ``"auto"``
     or ``(min, max)`` per column step. The other options are the CLI's by the same names;
     ``tuning`` holds the solve's tuning options (``{"no_refine": True, "scene_prior_clusters":
     8}``: ``reconstruct --help``'s Tuning options with underscores). ``progress``: a tqdm bar (True), none (False) or a
