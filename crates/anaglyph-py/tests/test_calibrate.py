@@ -72,6 +72,19 @@ def test_a_capture_without_a_board_is_refused_naming_the_camera(board, tabletop)
         anaglyph.calibrate(tabletop.captures, rig, pattern=(1, 6))
 
 
+def test_every_camera_without_the_board_is_named_with_what_it_saw(board):
+    _, rig, sim = board
+    with pytest.raises(anaglyph.UnusableError, match=r"no 8x6 checkerboard found in their calibration captures "
+                       r"\(each: a whole 9x6 grid of inner corners\); is the board 9x6\?"):
+        anaglyph.calibrate(sim.captures, rig, pattern=(8, 6))
+    boards = dict(sim.captures)
+    for name in ["r0c1", "r1c2"]:
+        boards[name] = np.full_like(boards[name], 30000)
+    with pytest.raises(anaglyph.UnusableError, match=r"cameras r0c1, r1c2 cannot be used: .*\(each: 0 inner "
+                       r"corners labelled\); the whole board must be seen"):
+        anaglyph.calibrate(boards, rig, pattern=(9, 6))
+
+
 def test_a_camera_mounted_upside_down_is_mapped_as_turned_and_reported(board):
     _, rig, sim = board
     upright = anaglyph.calibrate(sim.captures, rig, pattern=(9, 6))

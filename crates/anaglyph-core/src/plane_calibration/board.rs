@@ -31,6 +31,16 @@ pub struct DetectedBoard {
     pub rows: usize,
 }
 
+/// What the detector saw in a capture without the board asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardMissing {
+    /// Inner corners labelled.
+    pub labelled: usize,
+    /// The size of the whole grid the labelled corners form, where they form one (a board
+    /// of another pattern).
+    pub whole_grid: Option<(usize, usize)>,
+}
+
 /// The inner corners of `pattern` in `image` (see the module docs); `camera` names the
 /// camera in errors.
 pub fn detect_board(
@@ -38,6 +48,14 @@ pub fn detect_board(
     pattern: BoardPattern,
     camera: &str,
 ) -> Result<DetectedBoard> {
+    find_board(image, pattern).map_err(|missing| not_found(&[(camera, missing)], pattern))
+}
+
+/// [`detect_board`], telling what was seen where the board was not found.
+pub fn find_board(
+    image: &GreyImage,
+    pattern: BoardPattern,
+) -> std::result::Result<DetectedBoard, BoardMissing> {
     let grey = stretched_8bit(&gaussian_blur(image, DETECTION_BLUR));
     let view = GrayImageView {
         width: image.width,
@@ -47,17 +65,11 @@ pub fn detect_board(
     let frame = detect_corner_frame(&view, &default_chess_config());
     let detection = ChessboardDetector::new(ChessboardParams::default())
         .ok()
-        .and_then(|detector| detector.detect(&frame.corners));
-    let not_found = |found: usize| {
-        Error::unusable(
-            format!("camera {camera}"),
-            format!(
-                "no {pattern} checkerboard found in its calibration capture ({found} inner \
-                 corners labelled; the whole board must be seen, with a white border)"
-            ),
-        )
-    };
-    let detection = detection.ok_or_else(|| not_found(0))?;
+        .and_then(|detector| detector.detect(&frame.corners))
+        .ok_or(BoardMissing {
+            labelled: 0,
+            whole_grid: None,
+        })?;
     let labelled: Vec<(i32, i32, [f64; 2])> = detection
         .corners
         .iter()
@@ -69,7 +81,71 @@ pub fn detect_board(
             )
         })
         .collect();
-    in_board_order(&labelled, pattern).ok_or_else(|| not_found(labelled.len()))
+    in_board_order(&labelled, pattern).ok_or(BoardMissing {
+        labelled: labelled.len(),
+        whole_grid: whole_grid(&labelled),
+    })
+}
+
+/// One error naming every camera (name, what was seen) whose capture lacks the board.
+pub fn not_found(missing: &[(&str, BoardMissing)], pattern: BoardPattern) -> Error {
+    let names: Vec<&str> = missing.iter().map(|(name, _)| *name).collect();
+    let seen = |m: &BoardMissing| match m.whole_grid {
+        Some((c, r)) => format!("a whole {c}x{r} grid of inner corners"),
+        None => format!("{} inner corners labelled", m.labelled),
+    };
+    let alike = missing.iter().all(|(_, m)| *m == missing[0].1);
+    let (what, found) = match missing {
+        [(name, m)] => (
+            format!("camera {name}"),
+            format!("its calibration capture ({})", seen(m)),
+        ),
+        [(_, m), ..] if alike => (
+            format!("cameras {}", names.join(", ")),
+            format!("their calibration captures (each: {})", seen(m)),
+        ),
+        _ => (
+            format!("cameras {}", names.join(", ")),
+            format!(
+                "their calibration captures ({})",
+                missing
+                    .iter()
+                    .map(|(name, m)| format!("{name}: {}", seen(m)))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        ),
+    };
+    // The same other grid everywhere: the pattern asked for is not the board's.
+    let advice = match missing.first().and_then(|(_, m)| m.whole_grid) {
+        Some((c, r)) if alike => format!("is the board {c}x{r}?"),
+        _ => "the whole board must be seen, with a white border".to_string(),
+    };
+    Error::unusable(
+        what,
+        format!("no {pattern} checkerboard found in {found}; {advice}"),
+    )
+}
+
+/// The size (columns × rows as labelled) of the labelled corners when they are a whole
+/// grid, every corner of it present: a board of another pattern than the one asked for.
+fn whole_grid(labelled: &[(i32, i32, [f64; 2])]) -> Option<(usize, usize)> {
+    let (u_min, v_min) = labelled
+        .iter()
+        .fold((i32::MAX, i32::MAX), |(a, b), &(u, v, _)| {
+            (a.min(u), b.min(v))
+        });
+    let (u_max, v_max) = labelled
+        .iter()
+        .fold((i32::MIN, i32::MIN), |(a, b), &(u, v, _)| {
+            (a.max(u), b.max(v))
+        });
+    let (cols, rows) = ((u_max - u_min + 1) as usize, (v_max - v_min + 1) as usize);
+    let mut cells: Vec<(i32, i32)> = labelled.iter().map(|&(u, v, _)| (u, v)).collect();
+    cells.sort_unstable();
+    cells.dedup();
+    (cols >= 2 && rows >= 2 && cells.len() == labelled.len() && cells.len() == cols * rows)
+        .then_some((cols, rows))
 }
 
 /// The labelled corners row by row when they are exactly the `cols × rows` grid (or the
@@ -175,6 +251,19 @@ fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_whole_grid_of_another_size_is_told() {
+        let grid = |cols: i32, rows: i32, skip: usize| -> Vec<(i32, i32, [f64; 2])> {
+            (0..cols * rows)
+                .map(|i| (i % cols, i / cols, [0.0, 0.0]))
+                .skip(skip)
+                .collect()
+        };
+        assert_eq!(whole_grid(&grid(8, 5, 0)), Some((8, 5)));
+        assert_eq!(whole_grid(&grid(8, 5, 1)), None);
+        assert_eq!(whole_grid(&[]), None);
+    }
 
     /// A 4 × 3 grid seen slightly rotated, labelled from each of its corners in both
     /// orders: every labelling comes out in the same image order.

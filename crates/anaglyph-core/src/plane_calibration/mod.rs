@@ -231,11 +231,20 @@ pub fn calibrate_to_plane(
         })?;
     // Detected in parallel, reported in rig order: the first camera without a board is
     // the one named, whichever thread finishes first.
-    let detections: Vec<Result<DetectedBoard>> = captures
+    let detections: Vec<std::result::Result<DetectedBoard, board::BoardMissing>> = captures
         .par_iter()
-        .map(|c| detect_board(&c.image, pattern, &c.name))
+        .map(|c| board::find_board(&c.image, pattern))
         .collect();
-    let boards: Vec<DetectedBoard> = detections.into_iter().collect::<Result<_>>()?;
+    // Every camera without the board is named, with what was seen.
+    let missing: Vec<(&str, board::BoardMissing)> = captures
+        .iter()
+        .zip(&detections)
+        .filter_map(|(c, d)| d.as_ref().err().map(|m| (c.name.as_str(), *m)))
+        .collect();
+    if !missing.is_empty() {
+        return Err(board::not_found(&missing, pattern));
+    }
+    let boards: Vec<DetectedBoard> = detections.into_iter().flatten().collect();
     // The reference's image order is the board's; every camera is matched to it.
     let reference_board = &boards[reference_index];
     let grid = (reference_board.cols, reference_board.rows);
