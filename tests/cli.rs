@@ -68,7 +68,11 @@ fn rig_init_then_show_writes_the_rig_plot_and_c() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("125970 subsets exhaustively"));
     let rig = anaglyph_core::rig::Rig::load(&dir.path().join("rig.toml")).unwrap();
-    let chosen: Vec<&str> = rig.cameras.iter().map(|c| c.filter.name()).collect();
+    let chosen: Vec<&str> = rig
+        .cameras
+        .iter()
+        .filter_map(|c| Some(c.filter.as_ref()?.name()))
+        .collect();
     assert_eq!(chosen, anaglyph_core::rig::PAPER_RIG_FILTERS);
     let o = anaglyph(&["rig", "init", "--out", "rig.toml"], dir.path());
     assert_clean_failure(&o, "exists");

@@ -71,7 +71,10 @@ fn check_same_array(rig: &Rig, truth: &Path, recon: &Path) -> anyhow::Result<()>
     let simulated: Vec<(String, String)> = rig
         .cameras
         .iter()
-        .map(|c| (c.name.clone(), c.filter.name().to_string()))
+        .map(|c| {
+            let filter = c.filter.as_ref().map_or("none", |f| f.name());
+            (c.name.clone(), filter.to_string())
+        })
         .collect();
     if recorded != simulated {
         let list = |l: &[(String, String)]| {

@@ -156,7 +156,7 @@ pub fn rig_curve_files(rig: &anaglyph_core::rig::Rig) -> Vec<std::path::PathBuf>
         .chain(
             f.cameras
                 .iter()
-                .flat_map(|c| [Some(&c.filter), c.sensor.as_ref()]),
+                .flat_map(|c| [c.filter.as_ref(), c.sensor.as_ref()]),
         );
     references
         .flatten()

@@ -102,13 +102,19 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
         f.reconstruction.lambda, f.reconstruction.out_of_band
     );
     for cam in &rig.cameras {
-        let (lo, hi) = cam.filter.domain();
+        let (name, domain) = match &cam.filter {
+            Some(filter) => {
+                let (lo, hi) = filter.domain();
+                (filter.name(), format!("({lo}–{hi} nm)"))
+            }
+            None => ("none given", String::new()),
+        };
         println!(
-            "  {:<6} [{:>7.1}, {:>7.1}] mm  filter {:<20} ({lo}–{hi} nm)  sensor {} ({} ch){}",
+            "  {:<6} [{:>7.1}, {:>7.1}] mm  filter {:<20} {domain}  sensor {} ({} ch){}",
             cam.name,
             cam.position_mm[0],
             cam.position_mm[1],
-            cam.filter.name(),
+            name,
             cam.sensor.name(),
             cam.sensor.channel_count(),
             cam.image
@@ -116,6 +122,20 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
                 .map(|p| format!("  image {}", p.display()))
                 .unwrap_or_default()
         );
+    }
+    let unfiltered: Vec<&str> = rig
+        .cameras
+        .iter()
+        .filter(|c| c.filter.is_none())
+        .map(|c| c.name.as_str())
+        .collect();
+    if !unfiltered.is_empty() && args.export_c.is_none() {
+        println!(
+            "sensing matrix C: none ({} give no filter; spectra need every camera's, a \
+             registration-only run none)",
+            unfiltered.join(", ")
+        );
+        return Ok(());
     }
     let responses = EffectiveResponses::of_rig(&rig)?;
     let c = SensingMatrix::from_responses(&responses, shape, f.reconstruction.out_of_band)?;

@@ -684,16 +684,16 @@ fn unclear_inputs_get_messages_naming_them() {
     assert_clean_failure(&o, "capture of camera r0c0: both");
     // Curve keywords in any case, and without their arguments.
     let mut rig = anaglyph_core::rig::Rig::paper_rig_file(&anaglyph_core::rig::PAPER_RIG_FILTERS);
-    rig.cameras[0].filter = "GAUSSIAN:550:40".into();
+    rig.cameras[0].filter = Some("GAUSSIAN:550:40".into());
     rig.save(&d.join("upper.toml")).unwrap();
     let o = anaglyph(&["rig", "show", "upper.toml", "--plot", "u.svg"], d);
     assert!(o.status.success(), "{}", stderr(&o));
-    rig.cameras[0].filter = "gaussian".into();
+    rig.cameras[0].filter = Some("gaussian".into());
     rig.save(&d.join("bare.toml")).unwrap();
     let o = anaglyph(&["rig", "show", "bare.toml", "--plot", "b.svg"], d);
     assert_clean_failure(&o, "curve 'gaussian': a keyword without its arguments");
     // A camera named like the --views keyword.
-    rig.cameras[0].filter = "builtin:gel_red".into();
+    rig.cameras[0].filter = Some("builtin:gel_red".into());
     rig.cameras[0].name = Some("all".into());
     rig.save(&d.join("all.toml")).unwrap();
     let o = anaglyph(&["rig", "show", "all.toml", "--plot", "a.svg"], d);

@@ -187,8 +187,8 @@ fn render_pair(
     file.rows = Some(1);
     file.cols = Some(2);
     file.cameras.truncate(2);
-    file.cameras[0].filter = format!("builtin:{}", camera.filters[0]);
-    file.cameras[1].filter = format!("builtin:{}", camera.filters[1]);
+    file.cameras[0].filter = Some(format!("builtin:{}", camera.filters[0]));
+    file.cameras[1].filter = Some(format!("builtin:{}", camera.filters[1]));
     let rig = Rig::from_file(file, ".".into())?;
     let scene = Scene::resolve(scene, Path::new("."))?;
     let sim = Simulation::run(

@@ -159,8 +159,8 @@ fn tabletop_pair_registered(
     file.rows = Some(1);
     file.cols = Some(2);
     file.cameras.truncate(2);
-    file.cameras[0].filter = format!("builtin:{}", filters[0]);
-    file.cameras[1].filter = format!("builtin:{}", filters[1]);
+    file.cameras[0].filter = Some(format!("builtin:{}", filters[0]));
+    file.cameras[1].filter = Some(format!("builtin:{}", filters[1]));
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();
     let sim = Simulation::run(
@@ -440,8 +440,8 @@ fn vertical_pairs_match_through_transposition() {
     file.cameras.truncate(2);
     file.cameras[1].row = Some(1);
     file.cameras[1].col = Some(0);
-    file.cameras[0].filter = "builtin:gel_deep_red".into();
-    file.cameras[1].filter = "builtin:gel_violet".into();
+    file.cameras[0].filter = Some("builtin:gel_deep_red".into());
+    file.cameras[1].filter = Some("builtin:gel_violet".into());
     let ratio = (file.baseline_mm.unwrap().vertical / file.baseline_mm.unwrap().horizontal) as f32;
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let scene = Scene::resolve(SceneFile::preset("tabletop").unwrap(), Path::new(".")).unwrap();

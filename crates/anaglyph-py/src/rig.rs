@@ -76,8 +76,9 @@ impl Rig {
     }
 
     /// One dict per camera, in the rig's order: `name`, `position_mm` (x, y), `filter`
-    /// and `sensor` (curve names), `channels` (1 or 3), `reference` (the camera views are
-    /// registered to by calibration).
+    /// and `sensor` (curve names; `filter` None where the rig gives none, which only a
+    /// registration-only run accepts), `channels` (1 or 3), `reference` (the camera views
+    /// are registered to by calibration).
     #[getter]
     fn cameras<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let list = PyList::empty(py);
@@ -85,7 +86,7 @@ impl Rig {
             let d = PyDict::new(py);
             d.set_item("name", &cam.name)?;
             d.set_item("position_mm", (cam.position_mm[0], cam.position_mm[1]))?;
-            d.set_item("filter", cam.filter.name())?;
+            d.set_item("filter", cam.filter.as_ref().map(|f| f.name()))?;
             d.set_item("sensor", cam.sensor.name())?;
             d.set_item("channels", cam.sensor.channel_count())?;
             d.set_item("reference", i == self.inner.reference)?;

@@ -97,11 +97,13 @@ def test_registered_stacks_of_a_monochrome_array_are_the_cli_s_bytes(cli, tmp_pa
     assert len(rec.channel_labels) == 9 and rec.channel_labels[0].startswith("r0c0")
 
 
-def test_a_registration_only_run_needs_no_white_board_or_exposure():
+def test_a_registration_only_run_needs_no_white_board_exposure_or_filter():
     size = (128, 96)
     sim = anaglyph.simulate("tabletop", rig=small_rig("mono-3x3", size[0]), size=size)
-    text = "\n".join(line for line in sim.rig.to_toml().splitlines() if not line.startswith("exposure"))
-    bare = anaglyph.Rig.from_toml(text)
+    lines = sim.rig.to_toml().splitlines()
+    unlit = anaglyph.Rig.from_toml("\n".join(line for line in lines if not line.startswith("exposure")))
+    bare = anaglyph.Rig.from_toml("\n".join(line for line in lines if not line.startswith(("exposure", "filter"))))
+    assert {c["filter"] for c in bare.cameras} == {None}
     rec = anaglyph.reconstruct(bare, sim.captures, output="registered", views=["r1c1"], progress=False)
     view = rec.views["r1c1"]
     assert view.cube is None and view.registered.shape == (size[1], size[0], 9)
@@ -110,8 +112,10 @@ def test_a_registration_only_run_needs_no_white_board_or_exposure():
     # The view's own camera, as recorded.
     own = rec.channel_labels.index("r1c1")
     np.testing.assert_array_equal(view.registered[..., own], sim.captures["r1c1"] / np.float32(65535))
-    with pytest.raises(anaglyph.CapturesError, match="a registration-only run"):
+    with pytest.raises(anaglyph.CurveError, match="camera r0c0: no filter in rig"):
         anaglyph.reconstruct(bare, sim.captures, views=["r1c1"], progress=False)
+    with pytest.raises(anaglyph.CapturesError, match="a registration-only run"):
+        anaglyph.reconstruct(unlit, sim.captures, views=["r1c1"], progress=False)
 
 
 def test_tuning_reaches_the_solve_as_the_cli_s_options_do(cli, tmp_path, tabletop):

@@ -27,7 +27,10 @@ pub(super) fn calibrate_array(
     log: &mut RunLog,
 ) -> Result<CalibratedArray> {
     let clock = std::time::Instant::now();
-    let sensing = SensingMatrix::of_rig(rig)?;
+    let sensing = match settings.spectra {
+        true => SensingMatrix::of_rig(rig)?,
+        false => SensingMatrix::for_registration(rig)?,
+    };
     let condition_number = sensing.condition_number()?;
     if settings.spectra
         && condition_number > ILL_CONDITIONED_WARNING

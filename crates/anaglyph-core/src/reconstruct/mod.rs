@@ -245,6 +245,9 @@ fn reconstruct_frame(
         ));
     }
     check_captures_follow_rig(rig, captures)?;
+    if settings.spectra {
+        crate::rig::check_filters(rig)?;
+    }
     if let Disparities::Search(DisparitySearch::Fixed(range)) = settings.disparities {
         let geometry = ArrayGeometry::of_rig(rig);
         check_search_range(range, &geometry, captures.width, captures.height)?;

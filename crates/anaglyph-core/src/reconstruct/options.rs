@@ -263,7 +263,9 @@ impl ReconstructOptions {
             "cameras": rig
                 .cameras
                 .iter()
-                .map(|c| serde_json::json!({"name": c.name, "filter": c.filter.name()}))
+                .map(|c| {
+                    serde_json::json!({"name": c.name, "filter": c.filter.as_ref().map(|f| f.name())})
+                })
                 .collect::<Vec<_>>(),
         })
     }

@@ -87,7 +87,7 @@ fn seen_counts(stack: &Image<f32>, firsts: &[usize]) -> Result<image::GrayImage>
 fn nominal_centres(rig: &Rig) -> Option<Vec<f64>> {
     let mut centres = Vec::new();
     for cam in &rig.cameras {
-        let centre = nominal_centre(cam.filter.name())?;
+        let centre = nominal_centre(cam.filter.as_ref()?.name())?;
         centres.extend(std::iter::repeat_n(
             centre,
             cam.sensor.channel_names().len(),

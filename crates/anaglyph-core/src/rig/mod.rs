@@ -16,6 +16,6 @@ pub use rig_file::{
     MIN_PLANE_BASELINES, PAPER_RIG, PAPER_RIG_FILTERS, RIG_PRESETS,
 };
 pub use sensing::{
-    condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,
+    check_filters, condition_from_singular_values, EffectiveResponses, OutOfBand, SensingMatrix,
     ILL_CONDITIONED_WARNING,
 };

@@ -113,8 +113,10 @@ pub struct CameraEntry {
     /// The camera the array is calibrated to (default: the first camera).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub reference: bool,
-    /// Filter transmission curve reference.
-    pub filter: String,
+    /// Filter transmission curve reference; absent where it is not known, which only a
+    /// registration-only run accepts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter: Option<String>,
     /// Sensor override for this camera (default: the rig's sensor).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sensor: Option<String>,
@@ -192,7 +194,8 @@ pub struct Camera {
     pub position_mm: [f64; 2],
     /// Index of its `[[camera]]` entry in the rig file.
     pub entry: usize,
-    pub filter: ResponseCurve,
+    /// None: not given (a registration-only run; anything spectral refuses it).
+    pub filter: Option<ResponseCurve>,
     pub sensor: ResponseCurve,
     pub image: Option<PathBuf>,
     pub white: Option<PathBuf>,
@@ -444,16 +447,22 @@ impl Rig {
                     "1 for monochrome or 3 for RGB",
                 ));
             }
-            let filter = resolve_curve(&e.filter, &base_dir)?;
-            if filter.channel_count() != 1 {
-                return Err(Error::curve(
-                    format!("filter '{}'", filter.name()),
-                    format!("{} channels", filter.channel_count()),
-                    "1 transmission column",
-                ));
-            }
+            let filter = e
+                .filter
+                .as_deref()
+                .map(|f| resolve_curve(f, &base_dir))
+                .transpose()?;
             let (lo, hi) = sensor.domain();
-            filter.check_covers(lo, hi)?;
+            if let Some(filter) = &filter {
+                if filter.channel_count() != 1 {
+                    return Err(Error::curve(
+                        format!("filter '{}'", filter.name()),
+                        format!("{} channels", filter.channel_count()),
+                        "1 transmission column",
+                    ));
+                }
+                filter.check_covers(lo, hi)?;
+            }
             if let Some(light) = &illuminant {
                 light.check_covers(lo, hi)?;
             }
@@ -564,7 +573,7 @@ impl Rig {
                 col: Some(i % 4),
                 position_mm: None,
                 reference: false,
-                filter: format!("{BUILTIN_PREFIX}{f}"),
+                filter: Some(format!("{BUILTIN_PREFIX}{f}")),
                 sensor: None,
                 image: None,
                 white: None,
@@ -682,7 +691,7 @@ mod tests {
         assert!(err.to_string().contains("inside the 2 x 4 grid"), "{err}");
 
         let mut unknown = Rig::paper_rig_file(&EIGHT);
-        unknown.cameras[0].filter = "builtin:gel_nothing".into();
+        unknown.cameras[0].filter = Some("builtin:gel_nothing".into());
         assert!(Rig::from_file(unknown, ".".into())
             .unwrap_err()
             .to_string()
@@ -695,7 +704,7 @@ mod tests {
         )
         .unwrap();
         let mut short = Rig::paper_rig_file(&EIGHT);
-        short.cameras[0].filter = "short.csv".into();
+        short.cameras[0].filter = Some("short.csv".into());
         let err = Rig::from_file(short, dir.path().into())
             .unwrap_err()
             .to_string();

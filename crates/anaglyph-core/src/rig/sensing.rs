@@ -62,13 +62,29 @@ pub struct EffectiveResponses {
     pub camera_of_row: Vec<usize>,
 }
 
+/// Spectra need every camera's filter: an error naming the first camera of `rig` without
+/// one (a registration-only run needs none).
+pub fn check_filters(rig: &Rig) -> Result<()> {
+    match rig.cameras.iter().find(|c| c.filter.is_none()) {
+        Some(c) => Err(Error::curve(
+            format!("camera {}", c.name),
+            format!("no filter in rig '{}'", rig.file.name),
+            "its `filter` (a curve, gaussian:CENTRE:FWHM or builtin:<name>): spectra need \
+             every camera's; a registration-only run (--output registered) needs none",
+        )),
+        None => Ok(()),
+    }
+}
+
 impl EffectiveResponses {
-    /// Sensor × filter × illuminant for every camera channel of `rig`.
+    /// Sensor × filter × illuminant for every camera channel of `rig`; an error naming
+    /// the first camera whose filter the rig does not give ([`check_filters`]).
     pub fn of_rig(rig: &Rig) -> Result<Self> {
+        check_filters(rig)?;
         let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = rig
             .cameras
             .iter()
-            .map(|c| (&c.sensor, &c.filter, c.name.clone()))
+            .filter_map(|c| Some((&c.sensor, c.filter.as_ref()?, c.name.clone())))
             .collect();
         Self::of_cameras(
             &cameras,
@@ -298,6 +314,51 @@ impl SensingMatrix {
     /// C of a rig with its own reconstruction settings.
     pub fn of_rig(rig: &Rig) -> Result<Self> {
         let responses = EffectiveResponses::of_rig(rig)?;
+        Self::from_responses(
+            &responses,
+            rig.reconstruction_shape()?,
+            rig.file.reconstruction.out_of_band,
+        )
+    }
+
+    /// C of a rig whose cameras may lack filters, for a registration-only run: a camera
+    /// without one counts as unfiltered (transmission 1 over its sensor's range). Such a
+    /// run uses C only to shape the common signals multi-channel cameras are matched by.
+    pub fn for_registration(rig: &Rig) -> Result<Self> {
+        if rig.cameras.iter().all(|c| c.filter.is_some()) {
+            return Self::of_rig(rig);
+        }
+        let clear: Vec<Option<ResponseCurve>> = rig
+            .cameras
+            .iter()
+            .map(|c| match &c.filter {
+                Some(_) => Ok(None),
+                None => {
+                    let (lo, hi) = c.sensor.domain();
+                    ResponseCurve::new(
+                        "none given (unfiltered)",
+                        vec![lo, hi],
+                        vec!["transmission".into()],
+                        vec![vec![1.0, 1.0]],
+                    )
+                    .map(Some)
+                }
+            })
+            .collect::<Result<_>>()?;
+        let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = rig
+            .cameras
+            .iter()
+            .zip(&clear)
+            .filter_map(|(c, clear)| {
+                let filter = c.filter.as_ref().or(clear.as_ref())?;
+                Some((&c.sensor, filter, c.name.clone()))
+            })
+            .collect();
+        let responses = EffectiveResponses::of_cameras(
+            &cameras,
+            rig.illuminant.as_ref(),
+            rig.file.sensor_interpolation,
+        )?;
         Self::from_responses(
             &responses,
             rig.reconstruction_shape()?,

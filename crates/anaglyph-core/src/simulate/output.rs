@@ -282,18 +282,19 @@ fn simulated_rig_file(rig: &Rig, simulation: &Simulation, sequence: bool) -> Rig
             }
         }
     }
-    let absolutise = |r: &str| match curve_file(r, &rig.base_dir) {
+    let base = &rig.base_dir;
+    let absolutise = |r: &str| match curve_file(r, base) {
         Some(file) => std::path::absolute(&file)
             .unwrap_or(file)
             .display()
             .to_string(),
         None => r.to_string(),
     };
-    rig_file.sensor = absolutise(&rig_file.sensor);
     rig_file.illuminant = rig_file.illuminant.as_deref().map(absolutise);
     for cam in &mut rig_file.cameras {
-        cam.filter = absolutise(&cam.filter);
+        cam.filter = cam.filter.as_deref().map(absolutise);
         cam.sensor = cam.sensor.as_deref().map(absolutise);
     }
+    rig_file.sensor = absolutise(&rig_file.sensor);
     rig_file
 }
