@@ -7,7 +7,7 @@ use crate::errors::{to_py, IntoPyResult};
 use crate::rig::Rig;
 use anaglyph_core::choice::Choice;
 use anaglyph_core::plane_calibration::{
-    calibrate_to_plane, BoardCapture, BoardPattern, PlaneModel,
+    calibrate_to_plane, detect_board, BoardCapture, BoardPattern, PlaneModel,
 };
 use anaglyph_core::Error;
 use pyo3::prelude::*;
@@ -32,16 +32,7 @@ pub fn calibrate<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let rig = &rig.inner;
     let model = PlaneModel::parse_choice(model).py()?;
-    let pattern: BoardPattern =
-        format!("{}x{}", pattern.0, pattern.1)
-            .parse()
-            .map_err(|e: String| {
-                to_py(Error::setting(
-                    "pattern",
-                    e,
-                    "(cols, rows) inner corners, 2 to 100 each",
-                ))
-            })?;
+    let pattern = board_pattern(pattern)?;
     let reference = match reference {
         Some(name) => rig.cameras[rig.camera_index(&name).py()?].name.clone(),
         None => rig.cameras[rig.reference].name.clone(),
@@ -80,4 +71,37 @@ pub fn calibrate<'py>(
         out.set_item(&fit.name, d)?;
     }
     Ok(out)
+}
+
+/// `(cols, rows)` as a [`BoardPattern`], checked.
+fn board_pattern(pattern: (usize, usize)) -> PyResult<BoardPattern> {
+    format!("{}x{}", pattern.0, pattern.1)
+        .parse()
+        .map_err(|e: String| {
+            to_py(Error::setting(
+                "pattern",
+                e,
+                "(cols, rows) inner corners, 2 to 100 each",
+            ))
+        })
+}
+
+/// The inner corners of a checkerboard with `pattern=(cols, rows)` inner corners in one
+/// picture (`(H, W)` or `(H, W, C)`, grey as the mean of its channels), as `calibrate`
+/// finds them: `(rows * cols, 2)` pixel positions (x, y; pixel centres at integers), row
+/// by row as the image shows the board. Raises UnusableError naming what was seen where
+/// the board is not found.
+#[pyfunction]
+#[pyo3(signature = (image, pattern))]
+pub fn find_board<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    pattern: (usize, usize),
+) -> PyResult<Bound<'py, numpy::PyArrayDyn<f64>>> {
+    let pattern = board_pattern(pattern)?;
+    let picture = crate::arrays::image(image, "image", None)?;
+    let capture = BoardCapture::from_capture("image", &picture);
+    let board = run(py, || detect_board(&capture.image, pattern, "image"))?;
+    let corners: Vec<f64> = board.corners.iter().flatten().copied().collect();
+    array(py, &[board.corners.len(), 2], corners)
 }

@@ -106,3 +106,18 @@ def test_a_camera_mounted_upside_down_is_mapped_as_turned_and_reported(board):
         expected = apply(upright["r0c1"]["homography"], width - 1 - x, height - 1 - y)
         np.testing.assert_allclose(apply(turned["homography"], x, y), expected, atol=0.2)
     assert fits["r0c2"]["seen"] == "upright"
+
+
+def test_find_board_gives_the_corners_calibrate_fits(board):
+    _, rig, sim = board
+    fits = anaglyph.calibrate(sim.captures, rig, pattern=(9, 6))
+    corners = anaglyph.find_board(sim.captures["r0c0"], (9, 6))
+    assert corners.shape == (54, 2) and corners.dtype == np.float64
+    np.testing.assert_array_equal(corners, fits["r0c0"]["corners"])
+    # Row by row as the image shows the board: x grows along a row, y down the rows.
+    assert np.all(np.diff(corners[:9, 0]) > 0) and corners[9, 1] > corners[0, 1]
+    with pytest.raises(anaglyph.UnusableError, match=r"camera image cannot be used: no 8x6 checkerboard .*"
+                       r"is the board 9x6\?"):
+        anaglyph.find_board(sim.captures["r0c0"], (8, 6))
+    with pytest.raises(anaglyph.SettingError, match="pattern"):
+        anaglyph.find_board(sim.captures["r0c0"], (1, 6))

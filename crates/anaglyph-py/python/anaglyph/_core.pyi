@@ -53,6 +53,7 @@ __all__ = [
     "match_pair_arrays",
     "simulate",
     "calibrate",
+    "find_board",
     "reconstruct",
     "read_capture",
     "discover_frames",
@@ -173,6 +174,7 @@ def calibrate(
     reference: str | None = None,
     model: str = "homography",
 ) -> dict[str, dict[str, Any]]: ...
+def find_board(image: _Image, pattern: tuple[int, int]) -> npt.NDArray[np.float64]: ...
 def reconstruct(
     rig: Rig,
     captures: dict[str, _Image],
