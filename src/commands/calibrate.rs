@@ -57,12 +57,11 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             )
         };
         eprintln!(
-            "warning: camera {} sees the board {}{alternatives}: its map turns the image by {:.1}°{}, \
+            "warning: camera {} sees the board {}{alternatives}: its map turns the image by {:.1}°, \
              and reconstruct registers its captures (taken the same way) through it",
             fit.name,
             orientation.seen,
             fit.rotation_deg,
-            if fit.mirrored { " and mirrors it" } else { "" }
         );
     }
     println!(

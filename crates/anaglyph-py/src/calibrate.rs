@@ -16,8 +16,8 @@ use pyo3::types::PyDict;
 /// Calibrates the array to the plane of the checkerboard every camera sees in `boards`
 /// (one capture per camera of `rig`). Returns a dict per camera: `homography` (3x3 onto
 /// the reference camera, what `reconstruct(calibration=...)` takes), `residual_rms_px`,
-/// `residual_max_px`, `rotation_deg` and `mirrored` (the map's turn at the image centre,
-/// and whether it mirrors: a camera mounted otherwise than the reference), `seen` (how
+/// `residual_max_px`, `rotation_deg` (the map's turn at the image centre: beyond 90° for
+/// a camera mounted otherwise than the reference), `seen` (how
 /// the camera sees the board: "upright", "turned 180°", ...) and `corners`
 /// (`(rows * cols, 2)` pixel positions, in the reference's order).
 #[pyfunction]
@@ -64,7 +64,6 @@ pub fn calibrate<'py>(
         d.set_item("residual_rms_px", fit.residual_rms_px)?;
         d.set_item("residual_max_px", fit.residual_max_px)?;
         d.set_item("rotation_deg", fit.rotation_deg)?;
-        d.set_item("mirrored", fit.mirrored)?;
         d.set_item("seen", fit.orientation.seen)?;
         let corners: Vec<f64> = fit.corners.iter().flatten().copied().collect();
         d.set_item("corners", array(py, &[fit.corners.len(), 2], corners)?)?;

@@ -127,11 +127,10 @@ pub struct CameraPlaneFit {
     /// reference's, pixels.
     pub residual_rms_px: f64,
     pub residual_max_px: f64,
-    /// The turn of the map at the image centre (degrees, −180 to 180; of its proper part
-    /// when it mirrors): near 0 for cameras mounted alike.
+    /// The turn of the map at the image centre (degrees, −180 to 180): near 0 for cameras
+    /// mounted alike. A map never mirrors: a camera that sees the board mirrored is
+    /// refused ([`orientation::orient`], [`Homography::check_frame`]).
     pub rotation_deg: f64,
-    /// The map mirrors the image (its Jacobian's determinant is negative).
-    pub mirrored: bool,
     /// How the camera sees the board against the reference.
     pub orientation: Orientation,
     /// The detected corners in board order.
@@ -141,9 +140,9 @@ pub struct CameraPlaneFit {
 
 impl CameraPlaneFit {
     /// A camera mounted otherwise than the reference: its map turns the image by more
-    /// than 90° or mirrors it.
+    /// than 90°.
     pub fn mounted_otherwise(&self) -> bool {
-        self.rotation_deg.abs() > 90.0 || self.mirrored
+        self.rotation_deg.abs() > 90.0
     }
 }
 
@@ -229,8 +228,7 @@ pub fn calibrate_to_plane(
                 .collect::<Vec<_>>()
                 .join(", "),
         })?;
-    // Detected in parallel, reported in rig order: the first camera without a board is
-    // the one named, whichever thread finishes first.
+    // Detected in parallel, reported in rig order whichever thread finishes first.
     let detections: Vec<std::result::Result<DetectedBoard, board::BoardMissing>> = captures
         .par_iter()
         .map(|c| board::find_board(&c.image, pattern))
@@ -257,15 +255,7 @@ pub fn calibrate_to_plane(
     let oriented = captures
         .iter()
         .zip(&boards)
-        .map(|(c, board)| {
-            let seen = orientation::SeenGrid {
-                corners: &board.corners,
-                cols: board.cols,
-                rows: board.rows,
-                image: &c.image,
-            };
-            orientation::orient(&seen, grid, reference_phase, &c.name)
-        })
+        .map(|(c, board)| orientation::orient(board, &c.image, grid, reference_phase, &c.name))
         .collect::<Result<Vec<_>>>()?;
     let target = &oriented[reference_index].0;
     let cameras = captures
@@ -313,23 +303,21 @@ fn fit_camera(
     homography.check_frame(width, height, &format!("{name}'s homography"))?;
     let residuals = homography.residuals(corners, target);
     let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
-    let (rotation_deg, mirrored) = turn_at(&homography, width as f64 / 2.0, height as f64 / 2.0);
+    let rotation_deg = turn_at(&homography, width as f64 / 2.0, height as f64 / 2.0);
     Ok(CameraPlaneFit {
         name: capture.name.clone(),
         homography: homography.h,
         residual_rms_px: rms,
         residual_max_px: residuals.iter().copied().fold(0.0, f64::max),
         rotation_deg,
-        mirrored,
         orientation: orientation.clone(),
         corners: corners.to_vec(),
     })
 }
 
-/// The turn (degrees) and mirroring of `homography` at (x, y): from its Jacobian there,
-/// by finite differences; a mirrored map's turn is that of its proper part (the Jacobian
-/// with its first column negated).
-fn turn_at(homography: &Homography, x: f64, y: f64) -> (f64, bool) {
+/// The turn (degrees) of `homography` at (x, y): from its Jacobian there, by finite
+/// differences (check_frame has made sure the map does not mirror).
+fn turn_at(homography: &Homography, x: f64, y: f64) -> f64 {
     let step = 1.0;
     // check_frame has made sure the map is finite over the frame.
     let at = |x: f64, y: f64| {
@@ -339,15 +327,9 @@ fn turn_at(homography: &Homography, x: f64, y: f64) -> (f64, bool) {
     };
     let (right, left) = (at(x + step, y), at(x - step, y));
     let (down, up) = (at(x, y + step), at(x, y - step));
-    let mut j = [
+    let j = [
         [right[0] - left[0], down[0] - up[0]],
         [right[1] - left[1], down[1] - up[1]],
     ];
-    let mirrored = j[0][0] * j[1][1] - j[0][1] * j[1][0] < 0.0;
-    if mirrored {
-        j[0][0] = -j[0][0];
-        j[1][0] = -j[1][0];
-    }
-    let turn = (j[1][0] - j[0][1]).atan2(j[0][0] + j[1][1]).to_degrees();
-    (turn, mirrored)
+    (j[1][0] - j[0][1]).atan2(j[0][0] + j[1][1]).to_degrees()
 }

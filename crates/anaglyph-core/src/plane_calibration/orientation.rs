@@ -16,6 +16,7 @@
 //! the reference's colour phase. Out: the corners in the reference's order and an
 //! [`Orientation`].
 
+use super::DetectedBoard;
 use crate::stereo::GreyImage;
 use crate::{Error, Result};
 use serde::Serialize;
@@ -34,6 +35,13 @@ struct GridMap {
 }
 
 impl GridMap {
+    /// The image order kept.
+    const IDENTITY: GridMap = GridMap {
+        flip_u: false,
+        flip_v: false,
+        transpose: false,
+    };
+
     fn all() -> impl Iterator<Item = GridMap> {
         (0..8).map(|i| GridMap {
             flip_u: i & 1 != 0,
@@ -99,15 +107,6 @@ pub struct Orientation {
     pub colours_read: bool,
 }
 
-/// A board's grid of corners in image order, `cols × rows` as the image shows it.
-#[derive(Debug, Clone)]
-pub struct SeenGrid<'a> {
-    pub corners: &'a [[f64; 2]],
-    pub cols: usize,
-    pub rows: usize,
-    pub image: &'a GreyImage,
-}
-
 /// Which colour the squares of a grid (in its order) have: the sum over the squares of
 /// their grey values with alternating signs, over the sum of their distances from the mean
 /// (±1 for a clean board, near 0 where the colours cannot be read).
@@ -150,20 +149,21 @@ fn bilinear(image: &GreyImage, x: f64, y: f64) -> f64 {
         + (g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx) * fy
 }
 
-/// The corners of `seen` in the reference's order (a grid of `cols × rows`, the
-/// reference's size as its image shows it, whose colour phase is `reference_phase`), and
-/// how the camera (`camera`, for errors) sees the board.
+/// The corners of `board` (found in `image`) in the reference's order (a grid of
+/// `cols × rows`, the reference's size as its image shows it, whose colour phase is
+/// `reference_phase`), and how the camera (`camera`, for errors) sees the board.
 pub fn orient(
-    seen: &SeenGrid<'_>,
+    board: &DetectedBoard,
+    image: &GreyImage,
     (cols, rows): (usize, usize),
     reference_phase: f64,
     camera: &str,
 ) -> Result<(Vec<[f64; 2]>, Orientation)> {
     let candidates: Vec<(GridMap, Vec<[f64; 2]>, f64)> = GridMap::all()
         .filter_map(|map| {
-            let (corners, c, r) = map.apply(seen.corners, seen.cols, seen.rows);
+            let (corners, c, r) = map.apply(&board.corners, board.cols, board.rows);
             ((c, r) == (cols, rows)).then(|| {
-                let phase = colour_phase(&corners, c, r, seen.image);
+                let phase = colour_phase(&corners, c, r, image);
                 (map, corners, phase)
             })
         })
@@ -171,20 +171,21 @@ pub fn orient(
     if candidates.is_empty() {
         return Err(Error::calibration(
             format!("camera {camera}"),
-            format!("a board of {}x{} inner corners", seen.cols, seen.rows),
+            format!("a board of {}x{} inner corners", board.cols, board.rows),
             format!("the reference's {cols}x{rows}"),
         ));
     }
-    let identity = candidates[0].2;
-    let colours_read = identity.abs() >= READABLE_PHASE && reference_phase.abs() >= READABLE_PHASE;
+    // Every symmetry's phase has the same magnitude (it only flips the sign): any
+    // candidate's tells whether this camera's colours are readable.
+    let contrast = candidates[0].2.abs();
+    let colours_read = contrast >= READABLE_PHASE && reference_phase.abs() >= READABLE_PHASE;
     let mut kept: Vec<_> = candidates
         .into_iter()
         .filter(|(_, _, phase)| !colours_read || phase.signum() == reference_phase.signum())
         .collect();
     // The least turned proper map first; mirrors last.
     kept.sort_by_key(|(map, _, _)| (map.mirrored(), map.turn(), map.transpose));
-    let (best, corners, _) = kept.swap_remove(0);
-    kept.sort_by_key(|(map, _, _)| (map.mirrored(), map.turn(), map.transpose));
+    let (best, corners, _) = kept.remove(0);
     let rivals: Vec<GridMap> = kept.iter().map(|(m, _, _)| *m).collect();
     if let Some(tie) = rivals
         .iter()
@@ -205,7 +206,18 @@ pub fn orient(
             ));
         }
     }
-    let alternatives = if best == (GridMap::all().next().unwrap()) {
+    if colours_read && best.mirrored() {
+        return Err(Error::calibration(
+            format!("camera {camera}"),
+            format!(
+                "the board {} (its colours fit no turn of the reference's view)",
+                best.describe()
+            ),
+            "cameras that see the board unmirrored: flip the captures of a camera behind a \
+             mirror or beam splitter before calibrating and reconstructing",
+        ));
+    }
+    let alternatives = if best == GridMap::IDENTITY {
         Vec::new()
     } else {
         rivals.iter().map(|m| m.describe()).collect()
@@ -267,6 +279,14 @@ mod tests {
         (image, corners)
     }
 
+    fn seen(corners: &[[f64; 2]], cols: usize, rows: usize) -> DetectedBoard {
+        DetectedBoard {
+            corners: corners.to_vec(),
+            cols,
+            rows,
+        }
+    }
+
     /// The image turned 180° (both axes reversed), with its corners in image order.
     fn turned(image: &GreyImage, corners: &[[f64; 2]]) -> (GreyImage, Vec<[f64; 2]>) {
         let (w, h) = (image.width, image.height);
@@ -288,24 +308,14 @@ mod tests {
         let (image, corners) = board(9, 6);
         let phase = colour_phase(&corners, 9, 6, &image);
         assert!(phase.abs() > 0.9, "{phase}");
-        let upright = SeenGrid {
-            corners: &corners,
-            cols: 9,
-            rows: 6,
-            image: &image,
-        };
-        let (same, orientation) = orient(&upright, (9, 6), phase, "a").unwrap();
+        let (same, orientation) =
+            orient(&seen(&corners, 9, 6), &image, (9, 6), phase, "a").unwrap();
         assert_eq!(same, corners);
         assert_eq!(orientation.seen, "upright");
         assert!(orientation.alternatives.is_empty());
         let (image2, corners2) = turned(&image, &corners);
-        let seen = SeenGrid {
-            corners: &corners2,
-            cols: 9,
-            rows: 6,
-            image: &image2,
-        };
-        let (ordered, orientation) = orient(&seen, (9, 6), phase, "b").unwrap();
+        let (ordered, orientation) =
+            orient(&seen(&corners2, 9, 6), &image2, (9, 6), phase, "b").unwrap();
         assert_eq!(orientation.seen, "turned 180°");
         assert_eq!(orientation.alternatives, ["mirrored left to right"]);
         // Corner k of the turned camera is the reference's corner k, seen turned.
@@ -316,18 +326,42 @@ mod tests {
     }
 
     #[test]
+    fn a_camera_that_sees_the_board_mirrored_is_refused_where_the_colours_tell() {
+        // 9 x 7 inner corners: 10 x 8 squares; a turn by 180° keeps the colours, a mirror
+        // left to right does not, so only mirrors fit a mirrored view.
+        let (image, corners) = board(9, 7);
+        let phase = colour_phase(&corners, 9, 7, &image);
+        let (w, h) = (image.width, image.height);
+        let data = (0..w * h)
+            .map(|i| image.data[(i / w) * w + w - 1 - i % w])
+            .collect();
+        let mirrored = GreyImage {
+            data,
+            ..image.clone()
+        };
+        let corners: Vec<[f64; 2]> = (0..9 * 7)
+            .map(|k| {
+                let p = corners[(k / 9) * 9 + 8 - k % 9];
+                [(w - 1) as f64 - p[0], p[1]]
+            })
+            .collect();
+        let error = orient(&seen(&corners, 9, 7), &mirrored, (9, 7), phase, "b")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("camera b") && error.contains("mirrored") && error.contains("flip"),
+            "{error}"
+        );
+    }
+
+    #[test]
     fn a_symmetric_board_keeps_the_image_order_and_says_what_it_cannot_tell() {
         // 8 x 6 inner corners: 9 x 7 squares, all four corner squares one colour.
         let (image, corners) = board(8, 6);
         let phase = colour_phase(&corners, 8, 6, &image);
         let (image2, corners2) = turned(&image, &corners);
-        let seen = SeenGrid {
-            corners: &corners2,
-            cols: 8,
-            rows: 6,
-            image: &image2,
-        };
-        let (ordered, orientation) = orient(&seen, (8, 6), phase, "b").unwrap();
+        let (ordered, orientation) =
+            orient(&seen(&corners2, 8, 6), &image2, (8, 6), phase, "b").unwrap();
         assert_eq!(orientation.seen, "upright");
         assert_eq!(ordered, corners2);
     }
@@ -335,13 +369,9 @@ mod tests {
     #[test]
     fn a_grid_of_another_size_is_refused_naming_both() {
         let (image, corners) = board(4, 3);
-        let seen = SeenGrid {
-            corners: &corners,
-            cols: 4,
-            rows: 3,
-            image: &image,
-        };
-        let error = orient(&seen, (5, 3), 1.0, "b").unwrap_err().to_string();
+        let error = orient(&seen(&corners, 4, 3), &image, (5, 3), 1.0, "b")
+            .unwrap_err()
+            .to_string();
         assert!(error.contains("camera b") && error.contains("4x3") && error.contains("5x3"));
     }
 }

@@ -77,6 +77,12 @@ pub fn apply(m: &Matrix3, v: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
 }
 
+/// The names a pose's parts are read under, OpenCV's first.
+pub(super) const CAMERA_MATRIX_NAMES: [&str; 3] = ["camera_matrix", "cameraMatrix", "K"];
+pub(super) const ROTATION_MATRIX_NAMES: [&str; 2] = ["rotation_matrix", "R"];
+pub(super) const ROTATION_VECTOR_NAMES: [&str; 2] = ["rvec", "rotation_vector"];
+pub(super) const TRANSLATION_NAMES: [&str; 4] = ["translation_vector", "T", "t", "tvec"];
+
 impl CameraModel {
     /// Reads a FileStorage calibration (`.json`, `.yml`, `.yaml`).
     pub fn load(path: &Path) -> Result<Self> {
@@ -92,7 +98,7 @@ impl CameraModel {
         let bad = |field: &str, found: String, expected: &str| {
             Error::bad_field(context, field, found, expected)
         };
-        let (name, rows, cols, k) = matrix_entry(storage, &["camera_matrix", "cameraMatrix", "K"])
+        let (name, rows, cols, k) = matrix_entry(storage, &CAMERA_MATRIX_NAMES)
             .ok_or_else(|| bad("camera_matrix (K)", "absent".into(), "a 3x3 matrix"))?;
         if (rows, cols) != (3, 3) {
             return Err(bad(name, format!("{rows}x{cols}"), "3x3"));
@@ -121,7 +127,7 @@ impl CameraModel {
                 }
             },
         };
-        let rotation = match matrix_entry(storage, &["rotation_matrix", "R"]) {
+        let rotation = match matrix_entry(storage, &ROTATION_MATRIX_NAMES) {
             Some((_, 3, 3, r)) => [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]],
             Some((_, 3, 1, r)) | Some((_, 1, 3, r)) => rodrigues([r[0], r[1], r[2]]),
             Some((name, rows, cols, _)) => {
@@ -131,7 +137,7 @@ impl CameraModel {
                     "a 3x3 matrix or a 3-vector",
                 ))
             }
-            None => match matrix_entry(storage, &["rvec", "rotation_vector"]) {
+            None => match matrix_entry(storage, &ROTATION_VECTOR_NAMES) {
                 Some((_, _, _, r)) if r.len() == 3 => rodrigues([r[0], r[1], r[2]]),
                 Some((name, rows, cols, _)) => {
                     return Err(bad(name, format!("{rows}x{cols}"), "3x1"))
@@ -146,7 +152,7 @@ impl CameraModel {
             },
         };
         check_rotation(&rotation).map_err(|found| bad("rotation", found, "a rotation matrix"))?;
-        let translation = match matrix_entry(storage, &["translation_vector", "T", "t", "tvec"]) {
+        let translation = match matrix_entry(storage, &TRANSLATION_NAMES) {
             Some((_, _, _, t)) if t.len() == 3 => [t[0], t[1], t[2]],
             Some((name, rows, cols, _)) => return Err(bad(name, format!("{rows}x{cols}"), "3x1")),
             None => return Err(bad("translation_vector (T)", "absent".into(), "3x1")),

@@ -313,9 +313,13 @@ impl SensingMatrix {
 
     /// C of a rig with its own reconstruction settings.
     pub fn of_rig(rig: &Rig) -> Result<Self> {
-        let responses = EffectiveResponses::of_rig(rig)?;
+        Self::with_rig_settings(&EffectiveResponses::of_rig(rig)?, rig)
+    }
+
+    /// C of `responses` with `rig`'s reconstruction shape and out-of-band mode.
+    fn with_rig_settings(responses: &EffectiveResponses, rig: &Rig) -> Result<Self> {
         Self::from_responses(
-            &responses,
+            responses,
             rig.reconstruction_shape()?,
             rig.file.reconstruction.out_of_band,
         )
@@ -359,11 +363,7 @@ impl SensingMatrix {
             rig.illuminant.as_ref(),
             rig.file.sensor_interpolation,
         )?;
-        Self::from_responses(
-            &responses,
-            rig.reconstruction_shape()?,
-            rig.file.reconstruction.out_of_band,
-        )
+        Self::with_rig_settings(&responses, rig)
     }
 
     pub fn rows(&self) -> usize {

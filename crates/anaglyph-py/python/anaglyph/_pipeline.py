@@ -147,8 +147,8 @@ def calibrate(
     with ``pattern=(cols, rows)`` inner corners that every camera sees in ``boards``.
 
     Returns per camera ``homography`` (3x3), ``residual_rms_px``, ``residual_max_px``,
-    ``rotation_deg`` and ``mirrored`` (the map's turn at the image centre and whether it
-    mirrors: a camera mounted otherwise than the reference), ``seen`` (``"upright"``,
+    ``rotation_deg`` (the map's turn at the image centre: beyond 90° for a camera mounted
+    otherwise than the reference), ``seen`` (``"upright"``,
     ``"turned 180°"``, ...) and ``corners``. Pass ``{name: fit["homography"] ...}`` as ``reconstruct(calibration=...)``.
     """
     cols, rows = pattern
