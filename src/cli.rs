@@ -134,34 +134,62 @@ pub enum ArchitectureChoice {
     Accurate,
 }
 
+/// `anaglyph train`. The recipe options are optional so that a resumed run can check the
+/// ones given against its checkpoint's; `commands::train` applies the defaults.
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {
-    #[arg(long, value_enum, default_value_t = ArchitectureChoice::Fast)]
-    pub arch: ArchitectureChoice,
+    /// Architecture [default: fast].
+    #[arg(long, value_enum)]
+    pub arch: Option<ArchitectureChoice>,
     /// Output safetensors file (written atomically, with the recipe in its metadata).
     #[arg(long)]
     pub out: PathBuf,
-    /// Optimisation steps.
-    #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
-    pub steps: u64,
-    /// Seed of initialisation, training scenes and sampling.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    /// Triplets per step.
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u64).range(1..=65_536))]
-    pub batch: u64,
-    /// Simulated training scenes (each a pair of random gels, sensor and channels).
-    #[arg(long, default_value_t = 96, value_parser = clap::value_parser!(u64).range(1..=100_000))]
-    pub scenes: u64,
-    /// Peak learning rate (default: 2e-3 fast, 5e-4 accurate).
+    /// Optimisation steps [default: 20000].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    pub steps: Option<u64>,
+    /// Seed of initialisation, training scenes and sampling [default: 1].
     #[arg(long)]
+    pub seed: Option<u64>,
+    /// Triplets per step [default: 128].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=65_536))]
+    pub batch: Option<u64>,
+    /// Simulated training scenes (each a pair of random gels, sensor and channels)
+    /// [default: 96].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub scenes: Option<u64>,
+    /// Peak learning rate [default: 2e-3 fast, 5e-4 accurate].
+    #[arg(long, allow_hyphen_values = true)]
     pub learning_rate: Option<f64>,
-    /// Steps between validations.
-    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
-    pub validate_every: u64,
+    /// Steps between validations [default: 500].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub validate_every: Option<u64>,
     /// Also write the validation curve as CSV here.
     #[arg(long)]
     pub curve: Option<PathBuf>,
+    /// Save the run's whole state (weights, optimiser moments, random stream, curve) in
+    /// this folder every --checkpoint-minutes and when the run stops, so that --resume
+    /// continues it bit for bit.
+    #[arg(long, help_heading = "Segments", conflicts_with = "resume")]
+    pub checkpoint: Option<PathBuf>,
+    /// Continue the run checkpointed in this folder, with its recipe (recipe options given
+    /// here must agree); checkpoints go on into the folder.
+    #[arg(long, help_heading = "Segments")]
+    pub resume: Option<PathBuf>,
+    /// Minutes between checkpoints.
+    #[arg(
+        long,
+        help_heading = "Segments",
+        default_value_t = 5.0,
+        allow_hyphen_values = true
+    )]
+    pub checkpoint_minutes: f64,
+    /// Stop after this many minutes of training, checkpointed: one segment of a run that
+    /// --resume continues.
+    #[arg(long, help_heading = "Segments", allow_hyphen_values = true)]
+    pub segment_minutes: Option<f64>,
+    /// Stop once this step is done, checkpointed.
+    #[arg(long, help_heading = "Segments", value_parser = clap::value_parser!(u64).range(1..))]
+    pub stop_at_step: Option<u64>,
 }
 
 /// Parses `DEG,MM`.

@@ -19,6 +19,8 @@ mod real_sensor;
 mod registered_stack;
 #[path = "cli/sequence.rs"]
 mod sequence;
+#[path = "cli/train.rs"]
+mod train;
 
 fn anaglyph(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_anaglyph"))

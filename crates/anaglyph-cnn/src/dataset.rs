@@ -74,7 +74,7 @@ fn grey_of(capture: &[f32], channels: usize, w: usize, h: usize, channel: Channe
 }
 
 /// Sizes of the simulated pairs.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PairSettings {
     pub width: usize,
     pub height: usize,
@@ -310,7 +310,7 @@ pub fn channel_swap_pairs() -> anaglyph_core::Result<Vec<StereoPair>> {
 }
 
 /// MC-CNN's augmentation ranges (KITTI values of Zbontar & LeCun 2016, Table 3).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Augmentation {
     pub scale: f32,
     pub horizontal_scale: f32,

@@ -7,13 +7,18 @@
 //! the safetensors files written here.
 
 mod architecture;
+pub mod checkpoint;
 pub mod dataset;
 pub mod model;
+pub mod optimiser;
 pub mod train;
 
 pub use architecture::{Architecture, ArchitectureError, FC_UNITS_ACCURATE, KERNEL};
+pub use checkpoint::Checkpoint;
 pub use model::MatchingNet;
-pub use train::{train, TrainSettings, TrainedModel, ValidationPoint};
+pub use train::{
+    train, train_segment, Outcome, Segment, TrainSettings, TrainedModel, ValidationPoint,
+};
 
 /// Errors of training.
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +40,8 @@ pub enum Error {
         filled: usize,
         wanted: usize,
     },
+    #[error("training checkpoint {0}")]
+    Checkpoint(String),
     #[error("training diverged at step {step} (loss {loss})")]
     Diverged { step: usize, loss: f64 },
 }

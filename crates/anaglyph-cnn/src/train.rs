@@ -3,22 +3,28 @@
 //! a cosine learning-rate decay, seeded initialisation and sampling, and a held-out
 //! validation (triplet ranking error, and the winner-take-all bad-2 of the plain-Rust
 //! inference path on whole validation pairs) every `validate_every` steps.
+//!
+//! A run may go in segments ([`train_segment`]): each stops after a number of steps or a
+//! time and hands back a [`Checkpoint`]; the next resumes from it, and the run's weights,
+//! curve and random draws are those of the run made at once.
 
+use crate::checkpoint::Checkpoint;
 use crate::dataset::{
     channel_swap_pairs, sample_triplets, simulated_pairs, Augmentation, PairKind, PairSettings,
     StereoPair, TripletBatch, PATCH,
 };
 use crate::model::MatchingNet;
-use crate::{Architecture, Result};
+use crate::optimiser::AdamW;
+use crate::{Architecture, Error, Result};
 use anaglyph_core::stereo::{
     learned_cost_volume, winner_take_all, DisparityRange, MatchingNetwork,
 };
 use candle_core::{DType, Device, Tensor};
-use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use candle_nn::ParamsAdamW;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::collections::HashMap;
-use std::time::Instant;
+use std::collections::{BTreeMap, HashMap};
+use std::time::{Duration, Instant};
 
 /// Hinge margin of the fast network's loss (MC-CNN: 0.2).
 pub const HINGE_MARGIN: f64 = 0.2;
@@ -30,7 +36,7 @@ pub const CHANNEL_SWAP_SHARE: f64 = 0.2;
 pub const TRAINING_SEED: u64 = 1_000_000;
 
 /// Everything that determines a training run.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrainSettings {
     pub architecture: Architecture,
     pub steps: usize,
@@ -71,7 +77,7 @@ impl TrainSettings {
 }
 
 /// One point of the validation curve.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ValidationPoint {
     pub step: usize,
     pub seconds: f64,
@@ -80,9 +86,16 @@ pub struct ValidationPoint {
     /// % of held-out triplets (no augmentation) ranked wrongly.
     pub triplet_error: f64,
     /// Winner-take-all bad-2 (%) of the whole held-out pairs, by kind (fast networks; NaN
-    /// for accurate ones).
+    /// for accurate ones, written as JSON null).
+    #[serde(deserialize_with = "nan_if_null")]
     pub bad2_heterogeneous: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub bad2_homogeneous: f64,
+}
+
+/// JSON writes NaN as null; it reads back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// What a training step reports.
@@ -237,13 +250,74 @@ pub fn to_inference(net: &MatchingNet) -> Result<MatchingNetwork> {
     )?)
 }
 
-/// Trains a network; `report` is called after every step.
-pub fn train(
+/// How far one call of [`train_segment`] goes, where it starts, and how it saves.
+pub struct Segment<'a> {
+    /// Continue this run's checkpoint (its settings must be the run's).
+    pub resume: Option<Checkpoint>,
+    /// Stop once this many steps of the run are done (before the last step: a pause).
+    pub stop_at_step: Option<usize>,
+    /// Stop after the step during which this much time (this call's) has passed.
+    pub time_limit: Option<Duration>,
+    /// Hand a checkpoint to `save` this often, and always when the segment ends.
+    pub checkpoint_every: Option<Duration>,
+    pub save: Option<&'a mut SaveCheckpoint<'a>>,
+}
+
+/// Where a segment's checkpoints go (a file, a list, …).
+pub type SaveCheckpoint<'a> = dyn FnMut(&Checkpoint) -> Result<()> + 'a;
+
+impl Segment<'_> {
+    /// The whole run at once, without checkpoints.
+    pub fn whole() -> Self {
+        Segment {
+            resume: None,
+            stop_at_step: None,
+            time_limit: None,
+            checkpoint_every: None,
+            save: None,
+        }
+    }
+}
+
+/// How a segment ended.
+pub enum Outcome {
+    /// The run's last step is done.
+    Finished(TrainedModel),
+    /// The segment stopped early; the checkpoint continues the run.
+    Paused(Box<Checkpoint>),
+}
+
+/// Trains a network at once; `report` is called after every step.
+pub fn train(settings: &TrainSettings, report: impl FnMut(StepReport<'_>)) -> Result<TrainedModel> {
+    match train_segment(settings, Segment::whole(), report)? {
+        Outcome::Finished(model) => Ok(model),
+        Outcome::Paused(_) => unreachable!("a whole run does not pause"),
+    }
+}
+
+/// Trains a segment of a run: from the start or `segment.resume`, up to the run's last
+/// step or until the segment's step or time limit; `report` is called after every step.
+pub fn train_segment(
     settings: &TrainSettings,
+    mut segment: Segment<'_>,
     mut report: impl FnMut(StepReport<'_>),
-) -> Result<TrainedModel> {
+) -> Result<Outcome> {
     let started = Instant::now();
     settings.architecture.validate()?;
+    if let Some(checkpoint) = &segment.resume {
+        if &checkpoint.settings != settings {
+            return Err(Error::Checkpoint(format!(
+                "of another recipe ({}; expected the run's own)",
+                recipe_differences(&checkpoint.settings, settings).join(", ")
+            )));
+        }
+        if checkpoint.step > settings.steps {
+            return Err(Error::Checkpoint(format!(
+                "at step {} (expected at most the run's {} steps)",
+                checkpoint.step, settings.steps
+            )));
+        }
+    }
     let training = simulated_pairs(
         TRAINING_SEED + settings.seed * 10_000,
         settings.training_scenes,
@@ -283,56 +357,202 @@ pub fn train(
 
     let mut net = MatchingNet::new(settings.architecture, &Device::Cpu)?;
     initialise(&mut net, settings.seed)?;
-    let mut optimiser = AdamW::new(
-        net.varmap.all_vars(),
+    let optimiser = AdamW::new(
+        &net.varmap,
         ParamsAdamW {
             lr: settings.learning_rate,
             weight_decay: 1e-4,
             ..ParamsAdamW::default()
         },
     )?;
-    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    let mut curve = Vec::new();
-    let (mut loss_sum, mut loss_count) = (0.0, 0usize);
-    for step in 1..=settings.steps {
+    let mut run = RunState {
+        net,
+        optimiser,
+        rng: ChaCha8Rng::seed_from_u64(settings.seed),
+        loss: (0.0, 0),
+        curve: Vec::new(),
+        notes: BTreeMap::new(),
+        step: 0,
+        earlier_seconds: 0.0,
+    };
+    if let Some(checkpoint) = segment.resume.take() {
+        run.resume(checkpoint)?;
+    }
+    let seconds = |run: &RunState| run.earlier_seconds + started.elapsed().as_secs_f64();
+    let mut last_save = Instant::now();
+    for step in run.step + 1..=settings.steps {
         let progress = (step - 1) as f64 / settings.steps.max(1) as f64;
         let decay = 0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
-        optimiser.set_learning_rate(settings.learning_rate * decay);
-        let batch = sample_triplets(&groups, settings.batch, &settings.augmentation, &mut rng)?;
-        let (loss, _) = batch_loss(&net, &batch)?;
-        optimiser.backward_step(&loss)?;
+        run.optimiser
+            .set_learning_rate(settings.learning_rate * decay);
+        let batch = sample_triplets(
+            &groups,
+            settings.batch,
+            &settings.augmentation,
+            &mut run.rng,
+        )?;
+        let (loss, _) = batch_loss(&run.net, &batch)?;
+        run.optimiser.backward_step(&loss)?;
         let loss = loss.to_scalar::<f32>()? as f64;
         if !loss.is_finite() {
-            return Err(crate::Error::Diverged { step, loss });
+            return Err(Error::Diverged { step, loss });
         }
-        loss_sum += loss;
-        loss_count += 1;
+        run.loss = (run.loss.0 + loss, run.loss.1 + 1);
+        run.step = step;
         let mut point = None;
         if step % settings.validate_every == 0 || step == settings.steps {
-            let (_, wrong) = batch_loss(&net, &validation_batch)?;
-            let inference = to_inference(&net)?;
-            curve.push(ValidationPoint {
+            let (_, wrong) = batch_loss(&run.net, &validation_batch)?;
+            let inference = to_inference(&run.net)?;
+            run.curve.push(ValidationPoint {
                 step,
-                seconds: started.elapsed().as_secs_f64(),
-                train_loss: loss_sum / loss_count.max(1) as f64,
+                seconds: seconds(&run),
+                train_loss: run.loss.0 / run.loss.1.max(1) as f64,
                 triplet_error: 100.0 * wrong,
                 bad2_heterogeneous: whole_pair_bad2(&inference, &heterogeneous),
                 bad2_homogeneous: whole_pair_bad2(&inference, &homogeneous),
             });
-            (loss_sum, loss_count) = (0.0, 0);
-            point = curve.last();
+            run.loss = (0.0, 0);
+            point = run.curve.last();
         }
         report(StepReport {
             step,
             loss,
             validation: point,
         });
+        let stop = step < settings.steps
+            && (segment.stop_at_step.is_some_and(|s| step >= s)
+                || segment.time_limit.is_some_and(|t| started.elapsed() >= t));
+        if stop {
+            break;
+        }
+        if let (Some(every), Some(save)) = (segment.checkpoint_every, segment.save.as_mut()) {
+            if last_save.elapsed() >= every && step < settings.steps {
+                save(&run.checkpoint(settings, seconds(&run))?)?;
+                last_save = Instant::now();
+            }
+        }
     }
-    Ok(TrainedModel {
-        net,
-        curve,
-        seconds: started.elapsed().as_secs_f64(),
-    })
+    let state = run.checkpoint(settings, seconds(&run))?;
+    if let Some(save) = segment.save.as_mut() {
+        save(&state)?;
+    }
+    if run.step < settings.steps {
+        return Ok(Outcome::Paused(Box::new(state)));
+    }
+    Ok(Outcome::Finished(TrainedModel {
+        seconds: seconds(&run),
+        net: run.net,
+        curve: run.curve,
+    }))
+}
+
+/// The settings in which `saved` and `asked` differ, as "name: saved in the checkpoint,
+/// asked".
+fn recipe_differences(saved: &TrainSettings, asked: &TrainSettings) -> Vec<String> {
+    let fields = |s: &TrainSettings| match serde_json::to_value(s) {
+        Ok(serde_json::Value::Object(map)) => map,
+        _ => serde_json::Map::new(),
+    };
+    let (saved, asked) = (fields(saved), fields(asked));
+    saved
+        .iter()
+        .filter(|(k, v)| asked.get(*k) != Some(*v))
+        .map(|(k, v)| {
+            let here = asked.get(k).map_or("none".to_string(), ToString::to_string);
+            format!("{k}: {v} in the checkpoint, {here} asked")
+        })
+        .collect()
+}
+
+/// What a run carries from step to step.
+struct RunState {
+    net: MatchingNet,
+    optimiser: AdamW,
+    /// The sampler's random stream.
+    rng: ChaCha8Rng,
+    /// Training loss summed since the last validation point, and over how many steps.
+    loss: (f64, usize),
+    curve: Vec<ValidationPoint>,
+    notes: BTreeMap<String, String>,
+    /// Steps done.
+    step: usize,
+    /// Time spent in earlier segments, seconds.
+    earlier_seconds: f64,
+}
+
+impl RunState {
+    /// Takes up where `checkpoint` left off.
+    fn resume(&mut self, checkpoint: Checkpoint) -> Result<()> {
+        restore_weights(&mut self.net, &checkpoint)?;
+        self.optimiser.restore(
+            &checkpoint.tensors,
+            checkpoint.optimiser_steps,
+            "the checkpoint",
+        )?;
+        self.rng.set_word_pos(checkpoint.rng_word_pos);
+        self.loss = (checkpoint.loss_sum, checkpoint.loss_count);
+        self.curve = checkpoint.curve;
+        self.notes = checkpoint.notes;
+        self.step = checkpoint.step;
+        self.earlier_seconds = checkpoint.seconds;
+        Ok(())
+    }
+
+    /// The run's state now, `seconds` into it.
+    fn checkpoint(&self, settings: &TrainSettings, seconds: f64) -> Result<Checkpoint> {
+        let mut tensors: HashMap<String, Tensor> = self
+            .net
+            .varmap
+            .data()
+            .lock()
+            .map_err(|_| Error::Serialise("the variable map lock is poisoned".into()))?
+            .iter()
+            .map(|(k, v)| Ok((k.clone(), v.as_tensor().copy()?)))
+            .collect::<Result<_>>()?;
+        for (name, tensor) in self.optimiser.state() {
+            tensors.insert(name, tensor.copy()?);
+        }
+        Ok(Checkpoint {
+            settings: settings.clone(),
+            step: self.step,
+            tensors,
+            optimiser_steps: self.optimiser.steps_taken(),
+            rng_word_pos: self.rng.get_word_pos(),
+            loss_sum: self.loss.0,
+            loss_count: self.loss.1,
+            seconds,
+            curve: self.curve.clone(),
+            notes: self.notes.clone(),
+        })
+    }
+}
+
+/// The checkpoint's weights into `net`.
+fn restore_weights(net: &mut MatchingNet, checkpoint: &Checkpoint) -> Result<()> {
+    let names: Vec<(String, Vec<usize>)> = net
+        .varmap
+        .data()
+        .lock()
+        .map_err(|_| Error::Serialise("the variable map lock is poisoned".into()))?
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().dims().to_vec()))
+        .collect();
+    for (name, dims) in names {
+        let saved = checkpoint.tensors.get(&name).ok_or_else(|| {
+            Error::Checkpoint(format!(
+                "lacks the weight {name} of {:?}",
+                checkpoint.settings.architecture
+            ))
+        })?;
+        if saved.dims() != dims.as_slice() {
+            return Err(Error::Checkpoint(format!(
+                "weight {name} has shape {:?} (expected {dims:?})",
+                saved.dims()
+            )));
+        }
+        net.varmap.set_one(&name, saved)?;
+    }
+    Ok(())
 }
 
 impl TrainedModel {

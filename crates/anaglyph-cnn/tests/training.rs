@@ -3,13 +3,16 @@
 
 use anaglyph_cnn::dataset::{sample_triplets, simulated_pair, Augmentation, PairSettings, PATCH};
 use anaglyph_cnn::train::to_inference;
-use anaglyph_cnn::{train, Architecture, MatchingNet, TrainSettings};
+use anaglyph_cnn::{
+    train, train_segment, Architecture, Checkpoint, MatchingNet, Outcome, Segment, TrainSettings,
+};
 use anaglyph_core::stereo::{
     learned_cost_volume, tower_features, DisparityRange, GreyImage, MatchingNetwork,
 };
 use candle_core::{Device, Tensor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::collections::HashMap;
 
 fn random_image(w: usize, h: usize, seed: u64) -> GreyImage {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -120,6 +123,114 @@ fn a_few_training_steps_lower_the_loss_and_save_readable_weights() {
     assert_eq!(network.feature_maps(), 16);
     assert_eq!(network.metadata("steps"), Some("60"));
     assert!(!network.is_accurate());
+}
+
+/// A small run that validates four times.
+fn small_run(steps: usize) -> TrainSettings {
+    let mut settings = TrainSettings::new(SMALL_FAST);
+    settings.steps = steps;
+    settings.batch = 32;
+    settings.training_scenes = 3;
+    settings.validation_scenes = 2;
+    settings.validate_every = steps / 4;
+    settings.pairs = PairSettings {
+        width: 96,
+        height: 72,
+        homogeneous_share: 0.3,
+    };
+    settings
+}
+
+#[test]
+fn a_run_paused_and_resumed_equals_the_run_made_at_once() {
+    let settings = small_run(200);
+    let whole = train(&settings, |_| {}).unwrap();
+    // 100 steps, saved as bytes (as `train --checkpoint` writes them), then the rest.
+    let mut saved = Vec::new();
+    let mut save = |c: &Checkpoint| {
+        saved.push(c.to_bytes()?);
+        Ok(())
+    };
+    let first = Segment {
+        stop_at_step: Some(100),
+        save: Some(&mut save),
+        ..Segment::whole()
+    };
+    let Outcome::Paused(paused) = train_segment(&settings, first, |_| {}).unwrap() else {
+        panic!("the segment did not pause");
+    };
+    assert_eq!((paused.step, saved.len()), (100, 1));
+    let checkpoint = Checkpoint::from_bytes(&saved[0], "test").unwrap();
+    assert_eq!(checkpoint.step, 100);
+    assert_eq!(checkpoint.curve, paused.curve);
+    let mut steps = Vec::new();
+    let rest = Segment {
+        resume: Some(checkpoint),
+        ..Segment::whole()
+    };
+    let Outcome::Finished(resumed) =
+        train_segment(&settings, rest, |r| steps.push(r.step)).unwrap()
+    else {
+        panic!("the resumed segment did not finish");
+    };
+    assert_eq!(steps, (101..=200).collect::<Vec<_>>());
+    // Bit for bit: the weights' bytes and the curve (but for the time spent).
+    assert_eq!(
+        resumed.net.to_safetensors(HashMap::new()).unwrap(),
+        whole.net.to_safetensors(HashMap::new()).unwrap()
+    );
+    let untimed = |curve: &[anaglyph_cnn::ValidationPoint]| {
+        curve
+            .iter()
+            .map(|p| {
+                [
+                    p.step as f64,
+                    p.train_loss,
+                    p.triplet_error,
+                    p.bad2_heterogeneous,
+                    p.bad2_homogeneous,
+                ]
+                .map(f64::to_bits)
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(untimed(&resumed.curve), untimed(&whole.curve));
+    assert_eq!(resumed.curve.len(), 4);
+}
+
+#[test]
+fn a_checkpoint_resumes_only_its_own_recipe_and_weights_are_not_a_checkpoint() {
+    let settings = small_run(8);
+    let first = Segment {
+        stop_at_step: Some(4),
+        ..Segment::whole()
+    };
+    let Outcome::Paused(paused) = train_segment(&settings, first, |_| {}).unwrap() else {
+        panic!("the segment did not pause");
+    };
+    let mut other = settings.clone();
+    other.seed = 2;
+    let resume = Segment {
+        resume: Some(*paused),
+        ..Segment::whole()
+    };
+    let error = train_segment(&other, resume, |_| {})
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("another recipe") && error.contains("seed: 1 in the checkpoint, 2 asked"),
+        "{error}"
+    );
+    let model = train(&settings, |_| {}).unwrap();
+    let weights = model.to_safetensors(&settings, "test").unwrap();
+    let error = Checkpoint::from_bytes(&weights, "m.safetensors")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("m.safetensors") && error.contains("not trained weights"),
+        "{error}"
+    );
 }
 
 #[test]
