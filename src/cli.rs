@@ -424,7 +424,7 @@ pub struct SelectFiltersArgs {
 #[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
     /// Inner corners of the checkerboard, COLSxROWS (9x6 for a board of 10 × 7 squares);
-    /// the whole board must be seen by every camera.
+    /// every camera must see every inner corner (the frame may cut the outer squares).
     #[arg(long)]
     pub checkerboard: BoardPattern,
     /// Folder of checkerboard captures named <camera>.png|tif (e.g. r0c1.png), one per camera.

@@ -81,7 +81,7 @@ def test_every_camera_without_the_board_is_named_with_what_it_saw(board):
     for name in ["r0c1", "r1c2"]:
         boards[name] = np.full_like(boards[name], 30000)
     with pytest.raises(anaglyph.UnusableError, match=r"cameras r0c1, r1c2 cannot be used: .*\(each: 0 inner "
-                       r"corners labelled\); the whole board must be seen"):
+                       r"corners labelled\); every inner corner must be in the picture"):
         anaglyph.calibrate(boards, rig, pattern=(9, 6))
 
 

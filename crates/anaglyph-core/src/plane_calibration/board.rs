@@ -1,9 +1,23 @@
 //! Finding a checkerboard's inner corners in one camera's capture: the `calib-targets`
 //! ChESS detector finds, refines and labels them on an 8-bit copy blurred by
 //! [`DETECTION_BLUR`] and stretched between the 1st and 99th percentiles, so that dim
-//! narrow-band captures still show the board. A gradient-orthogonality refinement on the
-//! linear image (OpenCV's `cornerSubPix`) was tried after it and dropped: on simulated
-//! boards of 17 px squares it moved the median error from 0.015 to 0.06 px.
+//! narrow-band captures still show the board. Each labelled corner is then moved to the
+//! saddle that `chess-corners-core`'s saddle-point refiner (a quadratic surface re-centred
+//! until the window is symmetric about the corner) finds within half a pixel: the ChESS
+//! positions carry a bias that depends on where the corner falls between pixels (0.055 px
+//! median on the `cut` board of `scripts/board_detection.py` against 0.008 after the
+//! saddle fit; docs/reconstruction.md). A gradient-orthogonality refinement on the linear
+//! image (OpenCV's `cornerSubPix`) was tried before and dropped: on simulated boards of
+//! 17 px squares it moved the median error from 0.015 to 0.06 px.
+//!
+//! Where the detector labels part of the board but not all of it (the frame's edge cuts
+//! the outer squares, so the ChESS ring cannot see the inner corners beside it; a corner
+//! lost in low contrast), the grid is grown from the labelled part: each missing corner
+//! next to known ones is predicted by their homography from grid to image and kept where
+//! the saddle-point refiner of `chess-corners-core` finds, on the same 8-bit copy, a
+//! saddle as strong as the labelled corners' with a point-symmetric picture around it (an
+//! X-junction, not the T-junction where the outer squares meet the border). The grid may
+//! not grow past the pattern; the board is found when it ends as the whole pattern.
 //!
 //! In: a grey linear image and the board's inner-corner count. Out: the corners in board
 //! order (row by row from the top-left corner as the image shows it), or an error naming
@@ -11,11 +25,16 @@
 
 use super::BoardPattern;
 use crate::image::gaussian_blur_plane;
+use crate::rectify::Homography;
 use crate::stereo::GreyImage;
 use crate::{Error, Result};
 use calib_targets_chessboard::{
     default_chess_config, detect_corner_frame, ChessboardDetector, ChessboardParams, GrayImageView,
 };
+use chess_corners_core::{
+    CornerRefiner, ImageView, RefineContext, RefineStatus, SaddlePointConfig, SaddlePointRefiner,
+};
+use std::collections::HashMap;
 
 /// Gaussian blur (σ, px) of the copy the detector sees: on boards rendered at noise 0.03
 /// and contrast 0.06 the detector labelled 52 of 54 corners with it and 11 without; on
@@ -30,6 +49,9 @@ pub struct DetectedBoard {
     pub cols: usize,
     pub rows: usize,
 }
+
+/// A labelled corner: its grid label (u, v) and its position in the image.
+type Labelled = (i32, i32, [f64; 2]);
 
 /// What the detector saw in a capture without the board asked for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,7 +92,7 @@ pub fn find_board(
             labelled: 0,
             whole_grid: None,
         })?;
-    let labelled: Vec<(i32, i32, [f64; 2])> = detection
+    let labelled: Vec<Labelled> = detection
         .corners
         .iter()
         .map(|c| {
@@ -81,10 +103,245 @@ pub fn find_board(
             )
         })
         .collect();
-    in_board_order(&labelled, pattern).ok_or(BoardMissing {
-        labelled: labelled.len(),
-        whole_grid: whole_grid(&labelled),
+    // Every corner re-refined by the saddle-point fit, then the grid completed if need be.
+    let mut completion = Completion::new(&labelled, &grey, image.width, image.height);
+    let labelled: Vec<Labelled> = match completion.as_mut() {
+        Some(c) => labelled
+            .iter()
+            .map(|&(u, v, p)| (u, v, c.refined(p)))
+            .collect(),
+        None => labelled,
+    };
+    in_board_order(&labelled, pattern)
+        .or_else(|| {
+            let completed = complete_grid(&labelled, pattern, completion.as_mut()?)?;
+            in_board_order(&completed, pattern)
+        })
+        .ok_or(BoardMissing {
+            labelled: labelled.len(),
+            whole_grid: whole_grid(&labelled),
+        })
+}
+
+/// A labelled corner moves to the saddle the refiner finds only when it is this close
+/// (px); farther, the detector's position is kept.
+const REFINED_MOVE: f64 = 0.5;
+/// Completion starts from at least this share (%) of the pattern's corners labelled.
+const MIN_LABELLED_SHARE: usize = 25;
+/// A missing corner is predicted from the known corners at most this many cells away.
+const NEIGHBOURHOOD: i32 = 2;
+/// A missing corner's saddle must be at least this share of the labelled corners' median
+/// saddle strength.
+const COMPLETION_STRENGTH: f32 = 0.3;
+/// And lie within this share of the local square size of where the homography puts it.
+const COMPLETION_OFFSET: f64 = 0.15;
+/// And the image around it must be point-symmetric: opposite samples on a ring differ by
+/// less than this share of the ring's mean deviation (near 0 at an X-junction, about 1.3
+/// at the T-junction of the board's edge and its border).
+const MAX_ASYMMETRY: f64 = 0.5;
+
+/// The labelled corners grown to the whole `pattern` where the image confirms the missing
+/// ones: one ring at a time, each missing corner next to the known ones is predicted by
+/// the homography of the known corners around it and kept where a saddle confirms it
+/// ([`Completion::confirm`]); the grid may not grow past the pattern's size. None unless
+/// the known corners end as the whole pattern.
+fn complete_grid(
+    labelled: &[Labelled],
+    pattern: BoardPattern,
+    completion: &mut Completion<'_>,
+) -> Option<Vec<Labelled>> {
+    let whole = pattern.cols * pattern.rows;
+    if labelled.len() < MIN_LABELLED_SHARE * whole / 100 || labelled.len() >= whole {
+        return None;
+    }
+    let mut known: HashMap<(i32, i32), [f64; 2]> =
+        labelled.iter().map(|&(u, v, p)| ((u, v), p)).collect();
+    if known.len() != labelled.len() {
+        return None;
+    }
+    let (long, short) = (
+        pattern.cols.max(pattern.rows) as i32,
+        pattern.cols.min(pattern.rows) as i32,
+    );
+    loop {
+        let bounds = extent(known.keys());
+        let frontier: Vec<(i32, i32)> = {
+            let mut cells: Vec<(i32, i32)> = known
+                .keys()
+                .flat_map(|&(u, v)| [(u - 1, v), (u + 1, v), (u, v - 1), (u, v + 1)])
+                .filter(|c| !known.contains_key(c))
+                .filter(|&(u, v)| {
+                    let (lo, hi) = (
+                        (bounds.0 .0.min(u), bounds.0 .1.min(v)),
+                        (bounds.1 .0.max(u), bounds.1 .1.max(v)),
+                    );
+                    let (w, h) = (hi.0 - lo.0 + 1, hi.1 - lo.1 + 1);
+                    w.max(h) <= long && w.min(h) <= short
+                })
+                .collect();
+            cells.sort_unstable();
+            cells.dedup();
+            cells
+        };
+        let grown: Vec<((i32, i32), [f64; 2])> = frontier
+            .into_iter()
+            .filter_map(|cell| Some((cell, completion.confirm(&known, cell)?)))
+            .collect();
+        if grown.is_empty() {
+            break;
+        }
+        known.extend(grown);
+    }
+    // Labels from 0, as the detector's.
+    let (lo, _) = extent(known.keys());
+    (known.len() == whole).then(|| {
+        known
+            .into_iter()
+            .map(|((u, v), p)| (u - lo.0, v - lo.1, p))
+            .collect()
     })
+}
+
+/// The smallest and largest labels of `cells`.
+fn extent<'a>(cells: impl Iterator<Item = &'a (i32, i32)>) -> ((i32, i32), (i32, i32)) {
+    cells.fold(
+        ((i32::MAX, i32::MAX), (i32::MIN, i32::MIN)),
+        |(lo, hi), &(u, v)| ((lo.0.min(u), lo.1.min(v)), (hi.0.max(u), hi.1.max(v))),
+    )
+}
+
+/// Confirms predicted corners with saddles as strong as the labelled corners'.
+struct Completion<'a> {
+    grey: &'a [u8],
+    view: ImageView<'a>,
+    refiner: SaddlePointRefiner,
+    /// The weakest saddle that confirms a corner.
+    strong: f32,
+    size: (usize, usize),
+}
+
+impl<'a> Completion<'a> {
+    /// None when under half the labelled corners refine to a saddle.
+    fn new(labelled: &[Labelled], grey: &'a [u8], width: usize, height: usize) -> Option<Self> {
+        let mut completion = Completion {
+            grey,
+            view: ImageView::from_u8_slice(width, height, grey)?,
+            refiner: SaddlePointRefiner::new(SaddlePointConfig::default()),
+            strong: 0.0,
+            size: (width, height),
+        };
+        let mut strengths: Vec<f32> = labelled
+            .iter()
+            .filter_map(|&(_, _, p)| completion.saddle(p).map(|(_, s)| s))
+            .collect();
+        if strengths.len() < labelled.len() / 2 {
+            return None;
+        }
+        strengths.sort_by(f32::total_cmp);
+        completion.strong = COMPLETION_STRENGTH * strengths[strengths.len() / 2];
+        Some(completion)
+    }
+
+    /// `p` moved to the saddle the refiner finds near it (within [`REFINED_MOVE`]), or
+    /// `p` where it finds none.
+    fn refined(&mut self, p: [f64; 2]) -> [f64; 2] {
+        match self.saddle(p) {
+            Some((q, _)) if (q[0] - p[0]).hypot(q[1] - p[1]) < REFINED_MOVE => q,
+            _ => p,
+        }
+    }
+
+    /// The saddle the refiner finds from `p`, and its strength.
+    fn saddle(&mut self, p: [f64; 2]) -> Option<([f64; 2], f32)> {
+        let r = self.refiner.refine(
+            [p[0] as f32, p[1] as f32],
+            RefineContext::new(Some(self.view), None),
+        );
+        (r.status == RefineStatus::Accepted).then_some(([f64::from(r.x), f64::from(r.y)], r.score))
+    }
+
+    /// Whether the image around `centre` is point-symmetric as a checkerboard's X-junction
+    /// is (any affine view of it too), unlike the T-junction where the board's outer
+    /// squares meet its border, whose saddle can be as strong: the mean difference between
+    /// opposite samples on a ring (a third of the square, inside the frame) against the
+    /// ring's mean deviation.
+    fn point_symmetric(&self, centre: [f64; 2], square: f64) -> bool {
+        let (width, height) = self.size;
+        let room = centre[0]
+            .min(centre[1])
+            .min((width - 1) as f64 - centre[0])
+            .min((height - 1) as f64 - centre[1])
+            - 1.0;
+        let radius = (square / 3.0).min(room);
+        if radius < 1.5 {
+            return false;
+        }
+        let grey = self.grey;
+        let at = |x: f64, y: f64| {
+            let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+            let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+            let g = |x: usize, y: usize| f64::from(grey[y * width + x]);
+            (g(x0, y0) * (1.0 - fx) + g(x0 + 1, y0) * fx) * (1.0 - fy)
+                + (g(x0, y0 + 1) * (1.0 - fx) + g(x0 + 1, y0 + 1) * fx) * fy
+        };
+        const SAMPLES: usize = 32;
+        let ring: Vec<f64> = (0..SAMPLES)
+            .map(|k| {
+                let angle = std::f64::consts::TAU * k as f64 / SAMPLES as f64;
+                at(
+                    centre[0] + radius * angle.cos(),
+                    centre[1] + radius * angle.sin(),
+                )
+            })
+            .collect();
+        let mean = ring.iter().sum::<f64>() / SAMPLES as f64;
+        let spread = ring.iter().map(|g| (g - mean).abs()).sum::<f64>() / SAMPLES as f64;
+        let asymmetry = (0..SAMPLES)
+            .map(|k| (ring[k] - ring[(k + SAMPLES / 2) % SAMPLES]).abs())
+            .sum::<f64>()
+            / SAMPLES as f64;
+        spread > 0.0 && asymmetry < MAX_ASYMMETRY * spread
+    }
+
+    /// The corner of grid cell `cell`: predicted by the homography of the known corners
+    /// within a few cells of it, and kept where a saddle at least [`COMPLETION_STRENGTH`]
+    /// of the labelled corners' lies within [`COMPLETION_OFFSET`] of a square of the
+    /// prediction and the image around it is point-symmetric.
+    fn confirm(
+        &mut self,
+        known: &HashMap<(i32, i32), [f64; 2]>,
+        (u, v): (i32, i32),
+    ) -> Option<[f64; 2]> {
+        let near: Vec<([f64; 2], [f64; 2])> = known
+            .iter()
+            .filter(|((ku, kv), _)| (ku - u).abs().max((kv - v).abs()) <= NEIGHBOURHOOD)
+            .map(|(&(ku, kv), &p)| ([f64::from(ku), f64::from(kv)], p))
+            .collect();
+        if near.len() < 6 {
+            return None;
+        }
+        let (grid, image): (Vec<[f64; 2]>, Vec<[f64; 2]>) = near.into_iter().unzip();
+        let map = Homography::fit(&grid, &image).ok()?;
+        let at = |u: i32, v: i32| map.apply(f64::from(u), f64::from(v)).map(|(x, y)| [x, y]);
+        let predicted = at(u, v)?;
+        let (width, height) = self.size;
+        let inside = (0.0..=(width - 1) as f64).contains(&predicted[0])
+            && (0.0..=(height - 1) as f64).contains(&predicted[1]);
+        if !inside {
+            return None;
+        }
+        // The local square size: the distance to the neighbouring predictions.
+        let square = [at(u + 1, v)?, at(u, v + 1)?]
+            .iter()
+            .map(|n| (n[0] - predicted[0]).hypot(n[1] - predicted[1]))
+            .fold(f64::INFINITY, f64::min);
+        let (refined, strength) = self.saddle(predicted)?;
+        let moved = (refined[0] - predicted[0]).hypot(refined[1] - predicted[1]);
+        (strength >= self.strong
+            && moved <= COMPLETION_OFFSET * square
+            && self.point_symmetric(refined, square))
+        .then_some(refined)
+    }
 }
 
 /// One error naming every camera (name, what was seen) whose capture lacks the board.
@@ -118,8 +375,15 @@ pub fn not_found(missing: &[(&str, BoardMissing)], pattern: BoardPattern) -> Err
     };
     // The same other grid everywhere: the pattern asked for is not the board's.
     let advice = match missing.first().and_then(|(_, m)| m.whole_grid) {
-        Some((c, r)) if alike => format!("is the board {c}x{r}?"),
-        _ => "the whole board must be seen, with a white border".to_string(),
+        Some((c, r)) if alike => {
+            let inside = |(pc, pr): (usize, usize)| c <= pc && r <= pr;
+            if inside((pattern.cols, pattern.rows)) || inside((pattern.rows, pattern.cols)) {
+                format!("is the board {c}x{r}, or are some of its inner corners outside the frame?")
+            } else {
+                format!("is the board {c}x{r}?")
+            }
+        }
+        _ => "every inner corner must be in the picture, sharp enough to see".to_string(),
     };
     Error::unusable(
         what,
@@ -129,7 +393,7 @@ pub fn not_found(missing: &[(&str, BoardMissing)], pattern: BoardPattern) -> Err
 
 /// The size (columns × rows as labelled) of the labelled corners when they are a whole
 /// grid, every corner of it present: a board of another pattern than the one asked for.
-fn whole_grid(labelled: &[(i32, i32, [f64; 2])]) -> Option<(usize, usize)> {
+fn whole_grid(labelled: &[Labelled]) -> Option<(usize, usize)> {
     let (u_min, v_min) = labelled
         .iter()
         .fold((i32::MAX, i32::MAX), |(a, b), &(u, v, _)| {
@@ -151,10 +415,7 @@ fn whole_grid(labelled: &[(i32, i32, [f64; 2])]) -> Option<(usize, usize)> {
 /// The labelled corners row by row when they are exactly the `cols × rows` grid (or the
 /// `rows × cols` one, a board turned a quarter), ordered as the image shows them (see
 /// [`as_the_image_shows`]); None otherwise.
-fn in_board_order(
-    labelled: &[(i32, i32, [f64; 2])],
-    pattern: BoardPattern,
-) -> Option<DetectedBoard> {
+fn in_board_order(labelled: &[Labelled], pattern: BoardPattern) -> Option<DetectedBoard> {
     let (u_max, v_max) = labelled
         .iter()
         .fold((-1, -1), |(a, b), &(u, v, _)| (a.max(u), b.max(v)));
@@ -252,9 +513,134 @@ fn gaussian_blur(image: &GreyImage, sigma: f32) -> GreyImage {
 mod tests {
     use super::*;
 
+    /// A 41 × 41 8-bit picture of `shade(x, y)` (0 or 1 at each point), 4 × 4 samples a
+    /// pixel, dark 20 and light 230.
+    fn picture(shade: impl Fn(f64, f64) -> f64) -> Vec<u8> {
+        (0..41 * 41)
+            .map(|i| {
+                let (x, y) = ((i % 41) as f64, (i / 41) as f64);
+                let mut sum = 0.0;
+                for k in 0..16 {
+                    sum += shade(
+                        x - 0.375 + 0.25 * (k % 4) as f64,
+                        y - 0.375 + 0.25 * (k / 4) as f64,
+                    );
+                }
+                (20.0 + 210.0 * sum / 16.0).round() as u8
+            })
+            .collect()
+    }
+
+    #[test]
+    fn an_x_junction_is_point_symmetric_and_a_t_junction_is_not() {
+        let (cx, cy) = (20.3, 19.6);
+        // A checkerboard corner, turned 20°.
+        let (c, s) = (20f64.to_radians().cos(), 20f64.to_radians().sin());
+        let x_junction = picture(|x, y| {
+            let (u, v) = (c * (x - cx) + s * (y - cy), -s * (x - cx) + c * (y - cy));
+            f64::from(u * v > 0.0)
+        });
+        // The board's edge: dark above and light below on the left, its white border right.
+        let t_junction = picture(|x, y| f64::from(x > cx || y > cy));
+        for (grey, symmetric) in [(&x_junction, true), (&t_junction, false)] {
+            let completion = Completion {
+                grey,
+                view: ImageView::from_u8_slice(41, 41, grey).unwrap(),
+                refiner: SaddlePointRefiner::new(SaddlePointConfig::default()),
+                strong: 0.0,
+                size: (41, 41),
+            };
+            for square in [6.0, 24.0] {
+                assert_eq!(
+                    completion.point_symmetric([cx, cy], square),
+                    symmetric,
+                    "{square}"
+                );
+            }
+        }
+    }
+
+    /// A 9 × 6 board (10 × 7 squares of 14 px, turned 10°) with a white border on a grey
+    /// wall, 200 × 150, blurred as the detector's copy is: its 8-bit picture and its
+    /// inner corners (labels, position).
+    fn synthetic_board() -> (Vec<u8>, Vec<Labelled>) {
+        let (w, h, square, turn) = (200, 150, 14.0, 10f64.to_radians());
+        let origin = [35.3, 22.8];
+        let (c, s) = (turn.cos(), turn.sin());
+        let to_board = |x: f64, y: f64| {
+            let (dx, dy) = (x - origin[0], y - origin[1]);
+            ((c * dx + s * dy) / square, (-s * dx + c * dy) / square)
+        };
+        let shade = |x: f64, y: f64| {
+            let (u, v) = to_board(x, y);
+            if (0.0..10.0).contains(&u) && (0.0..7.0).contains(&v) {
+                ((u.floor() + v.floor()) as i64 % 2) as f32 * 0.85 + 0.05
+            } else if (-1.0..11.0).contains(&u) && (-1.0..8.0).contains(&v) {
+                0.9
+            } else {
+                0.5
+            }
+        };
+        let linear: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                (0..16)
+                    .map(|k| {
+                        shade(
+                            x - 0.375 + 0.25 * (k % 4) as f64,
+                            y - 0.375 + 0.25 * (k / 4) as f64,
+                        )
+                    })
+                    .sum::<f32>()
+                    / 16.0
+            })
+            .collect();
+        let blurred = gaussian_blur_plane(w, h, linear, DETECTION_BLUR);
+        let grey = blurred.iter().map(|v| (v * 255.0).round() as u8).collect();
+        let corners = (1..=6)
+            .flat_map(|j| (1..=9).map(move |i| (i, j)))
+            .map(|(i, j)| {
+                let (u, v) = (f64::from(i) * square, f64::from(j) * square);
+                let p = [origin[0] + c * u - s * v, origin[1] + s * u + c * v];
+                (i - 1, j - 1, p)
+            })
+            .collect();
+        (grey, corners)
+    }
+
+    #[test]
+    fn a_grid_grows_from_a_labelled_part_to_the_whole_board_and_no_further() {
+        let (grey, truth) = synthetic_board();
+        let nine_by_six = BoardPattern { cols: 9, rows: 6 };
+        // A 5 × 3 block of the 54 corners labelled (as a detector misled by clutter might
+        // leave it), with labels that do not start at 0.
+        let part: Vec<Labelled> = truth
+            .iter()
+            .filter(|(u, v, _)| (2..7).contains(u) && (1..4).contains(v))
+            .map(|&(u, v, p)| (u + 3, v - 1, p))
+            .collect();
+        assert_eq!(part.len(), 15);
+        let mut completion = Completion::new(&part, &grey, 200, 150).unwrap();
+        let grown = complete_grid(&part, nine_by_six, &mut completion).unwrap();
+        assert_eq!(grown.len(), 54);
+        let board = in_board_order(&grown, nine_by_six).unwrap();
+        let worst = board
+            .corners
+            .iter()
+            .zip(&truth)
+            .map(|(f, (_, _, t))| (f[0] - t[0]).hypot(f[1] - t[1]))
+            .fold(0.0, f64::max);
+        assert!(worst < 0.15, "{worst}");
+        // The border's T-junctions do not make a 10 × 6 or 9 × 7 board of it.
+        for (cols, rows) in [(10, 6), (9, 7)] {
+            let pattern = BoardPattern { cols, rows };
+            assert!(complete_grid(&part, pattern, &mut completion).is_none());
+        }
+    }
+
     #[test]
     fn a_whole_grid_of_another_size_is_told() {
-        let grid = |cols: i32, rows: i32, skip: usize| -> Vec<(i32, i32, [f64; 2])> {
+        let grid = |cols: i32, rows: i32, skip: usize| -> Vec<Labelled> {
             (0..cols * rows)
                 .map(|i| (i % cols, i / cols, [0.0, 0.0]))
                 .skip(skip)
@@ -281,7 +667,7 @@ mod tests {
             for flip_v in [false, true] {
                 for transpose in [false, true] {
                     // The detector's labels (lu, lv) of image corner (u, v).
-                    let labelled: Vec<(i32, i32, [f64; 2])> = (0..cols * rows)
+                    let labelled: Vec<Labelled> = (0..cols * rows)
                         .map(|i| {
                             let (u, v) = (i % cols, i / cols);
                             let u2 = if flip_u { cols - 1 - u } else { u };
