@@ -139,6 +139,26 @@ fn a_registration_only_run_needs_no_white_board_exposure_or_filter() {
     assert!(o.status.success(), "{}", stderr(&o));
     let o = run("rig", "registered", "white");
     assert!(o.status.success(), "{}", stderr(&o));
+    // A filter that lets none of its sensor's light through: a registration-only run says
+    // so once and matches that camera as unfiltered; a run with cubes refuses it.
+    let first_filter = text
+        .lines()
+        .find(|l| l.starts_with("filter ="))
+        .expect("the rig has filters");
+    let dark = text.replacen(first_filter, "filter = \"gaussian:1100:10\"", 1);
+    std::fs::write(d.join("sim/dark.toml"), dark).unwrap();
+    let o = run("dark", "registered", "dark");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        stderr(&o)
+            .matches("let none of the sensor's light through")
+            .count(),
+        1,
+        "{}",
+        stderr(&o)
+    );
+    let o = run("dark", "cube", "dark-cubes");
+    assert_clean_failure(&o, "sees no light at all");
     let manifest = |run: &str| -> serde_json::Value {
         let text = std::fs::read_to_string(d.join(format!("{run}/manifest.json"))).unwrap();
         serde_json::from_str(&text).unwrap()

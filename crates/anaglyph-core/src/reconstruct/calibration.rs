@@ -29,7 +29,18 @@ pub(super) fn calibrate_array(
     let clock = std::time::Instant::now();
     let sensing = match settings.spectra {
         true => SensingMatrix::of_rig(rig)?,
-        false => SensingMatrix::for_registration(rig)?,
+        false => {
+            let (sensing, set_aside) = SensingMatrix::for_registration(rig)?;
+            if !set_aside.is_empty() {
+                log.warnings.push(format!(
+                    "the filter curves of {} let none of the sensor's light through \
+                     (sensor × filter × illuminant is zero): this registration-only run \
+                     matches those cameras as unfiltered, and a run with cubes would refuse them",
+                    set_aside.join(", ")
+                ));
+            }
+            sensing
+        }
     };
     let condition_number = sensing.condition_number()?;
     if settings.spectra

@@ -325,45 +325,72 @@ impl SensingMatrix {
         )
     }
 
-    /// C of a rig whose cameras may lack filters, for a registration-only run: a camera
-    /// without one counts as unfiltered (transmission 1 over its sensor's range). Such a
-    /// run uses C only to shape the common signals multi-channel cameras are matched by.
-    pub fn for_registration(rig: &Rig) -> Result<Self> {
-        if rig.cameras.iter().all(|c| c.filter.is_some()) {
-            return Self::of_rig(rig);
-        }
-        let clear: Vec<Option<ResponseCurve>> = rig
+    /// C of a rig for a registration-only run, and the cameras whose filter curves it set
+    /// aside. A camera without a filter, or whose filter lets none of its sensor's light
+    /// through (sensor × filter × illuminant is zero, which spectra refuse), counts as
+    /// unfiltered (transmission 1 over its sensor's range). Such a run uses C only to shape
+    /// the common signals multi-channel cameras are matched by.
+    pub fn for_registration(rig: &Rig) -> Result<(Self, Vec<String>)> {
+        let clear: Vec<ResponseCurve> = rig
             .cameras
             .iter()
-            .map(|c| match &c.filter {
-                Some(_) => Ok(None),
-                None => {
-                    let (lo, hi) = c.sensor.domain();
-                    ResponseCurve::new(
-                        "none given (unfiltered)",
-                        vec![lo, hi],
-                        vec!["transmission".into()],
-                        vec![vec![1.0, 1.0]],
-                    )
-                    .map(Some)
-                }
+            .map(|c| {
+                let (lo, hi) = c.sensor.domain();
+                ResponseCurve::new(
+                    "none given (unfiltered)",
+                    vec![lo, hi],
+                    vec!["transmission".into()],
+                    vec![vec![1.0, 1.0]],
+                )
             })
             .collect::<Result<_>>()?;
-        let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = rig
-            .cameras
-            .iter()
-            .zip(&clear)
-            .filter_map(|(c, clear)| {
-                let filter = c.filter.as_ref().or(clear.as_ref())?;
-                Some((&c.sensor, filter, c.name.clone()))
+        // The responses with each camera's filter, or the clear one where `unfiltered`.
+        let responses = |unfiltered: &[bool]| {
+            let cameras: Vec<(&ResponseCurve, &ResponseCurve, String)> = rig
+                .cameras
+                .iter()
+                .zip(&clear)
+                .zip(unfiltered)
+                .map(|((c, clear), &u)| {
+                    let filter = if u {
+                        clear
+                    } else {
+                        c.filter.as_ref().unwrap_or(clear)
+                    };
+                    (&c.sensor, filter, c.name.clone())
+                })
+                .collect();
+            EffectiveResponses::of_cameras(
+                &cameras,
+                rig.illuminant.as_ref(),
+                rig.file.sensor_interpolation,
+            )
+        };
+        let missing: Vec<bool> = rig.cameras.iter().map(|c| c.filter.is_none()).collect();
+        let first = responses(&missing)?;
+        let unlit: Vec<bool> = (0..rig.cameras.len())
+            .map(|m| {
+                !first
+                    .rows
+                    .iter()
+                    .zip(&first.camera_of_row)
+                    .any(|(row, &c)| c == m && row.iter().any(|&v| v > 0.0))
             })
             .collect();
-        let responses = EffectiveResponses::of_cameras(
-            &cameras,
-            rig.illuminant.as_ref(),
-            rig.file.sensor_interpolation,
-        )?;
-        Self::with_rig_settings(&responses, rig)
+        let set_aside: Vec<String> = rig
+            .cameras
+            .iter()
+            .zip(&unlit)
+            .filter(|(c, &dark)| dark && c.filter.is_some())
+            .map(|(c, _)| c.name.clone())
+            .collect();
+        let responses = if set_aside.is_empty() {
+            first
+        } else {
+            let unfiltered: Vec<bool> = missing.iter().zip(&unlit).map(|(a, b)| *a || *b).collect();
+            responses(&unfiltered)?
+        };
+        Ok((Self::with_rig_settings(&responses, rig)?, set_aside))
     }
 
     pub fn rows(&self) -> usize {
