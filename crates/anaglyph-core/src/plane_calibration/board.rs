@@ -104,8 +104,8 @@ pub fn find_board(
         })
         .collect();
     // Every corner re-refined by the saddle-point fit, then the grid completed if need be.
-    let mut completion = Completion::new(&labelled, &grey, image.width, image.height);
-    let labelled: Vec<Labelled> = match completion.as_mut() {
+    let mut saddles = Saddles::new(&labelled, &grey, image.width, image.height);
+    let labelled: Vec<Labelled> = match saddles.as_mut() {
         Some(c) => labelled
             .iter()
             .map(|&(u, v, p)| (u, v, c.refined(p)))
@@ -114,7 +114,7 @@ pub fn find_board(
     };
     in_board_order(&labelled, pattern)
         .or_else(|| {
-            let completed = complete_grid(&labelled, pattern, completion.as_mut()?)?;
+            let completed = complete_grid(&labelled, pattern, saddles.as_mut()?)?;
             in_board_order(&completed, pattern)
         })
         .ok_or(BoardMissing {
@@ -126,7 +126,7 @@ pub fn find_board(
 /// A labelled corner moves to the saddle the refiner finds only when it is this close
 /// (px); farther, the detector's position is kept.
 const REFINED_MOVE: f64 = 0.5;
-/// Completion starts from at least this share (%) of the pattern's corners labelled.
+/// Saddles starts from at least this share (%) of the pattern's corners labelled.
 const MIN_LABELLED_SHARE: usize = 25;
 /// A missing corner is predicted from the known corners at most this many cells away.
 const NEIGHBOURHOOD: i32 = 2;
@@ -136,19 +136,19 @@ const COMPLETION_STRENGTH: f32 = 0.3;
 /// And lie within this share of the local square size of where the homography puts it.
 const COMPLETION_OFFSET: f64 = 0.15;
 /// And the image around it must be point-symmetric: opposite samples on a ring differ by
-/// less than this share of the ring's mean deviation (near 0 at an X-junction, about 1.3
-/// at the T-junction of the board's edge and its border).
+/// less than this share of the ring's mean deviation (near 0 at an X-junction; 4/3 at a
+/// sharp T-junction whose border is as light as the light squares).
 const MAX_ASYMMETRY: f64 = 0.5;
 
 /// The labelled corners grown to the whole `pattern` where the image confirms the missing
 /// ones: one ring at a time, each missing corner next to the known ones is predicted by
 /// the homography of the known corners around it and kept where a saddle confirms it
-/// ([`Completion::confirm`]); the grid may not grow past the pattern's size. None unless
+/// ([`Saddles::confirm`]); the grid may not grow past the pattern's size. None unless
 /// the known corners end as the whole pattern.
 fn complete_grid(
     labelled: &[Labelled],
     pattern: BoardPattern,
-    completion: &mut Completion<'_>,
+    saddles: &mut Saddles<'_>,
 ) -> Option<Vec<Labelled>> {
     let whole = pattern.cols * pattern.rows;
     if labelled.len() < MIN_LABELLED_SHARE * whole / 100 || labelled.len() >= whole {
@@ -185,7 +185,7 @@ fn complete_grid(
         };
         let grown: Vec<((i32, i32), [f64; 2])> = frontier
             .into_iter()
-            .filter_map(|cell| Some((cell, completion.confirm(&known, cell)?)))
+            .filter_map(|cell| Some((cell, saddles.confirm(&known, cell)?)))
             .collect();
         if grown.is_empty() {
             break;
@@ -210,8 +210,9 @@ fn extent<'a>(cells: impl Iterator<Item = &'a (i32, i32)>) -> ((i32, i32), (i32,
     )
 }
 
-/// Confirms predicted corners with saddles as strong as the labelled corners'.
-struct Completion<'a> {
+/// The saddle-point refiner on the detector's 8-bit copy: it moves labelled corners to
+/// their saddles and confirms predicted ones with saddles as strong as the labelled ones'.
+struct Saddles<'a> {
     grey: &'a [u8],
     view: ImageView<'a>,
     refiner: SaddlePointRefiner,
@@ -220,10 +221,10 @@ struct Completion<'a> {
     size: (usize, usize),
 }
 
-impl<'a> Completion<'a> {
+impl<'a> Saddles<'a> {
     /// None when under half the labelled corners refine to a saddle.
     fn new(labelled: &[Labelled], grey: &'a [u8], width: usize, height: usize) -> Option<Self> {
-        let mut completion = Completion {
+        let mut saddles = Saddles {
             grey,
             view: ImageView::from_u8_slice(width, height, grey)?,
             refiner: SaddlePointRefiner::new(SaddlePointConfig::default()),
@@ -232,14 +233,14 @@ impl<'a> Completion<'a> {
         };
         let mut strengths: Vec<f32> = labelled
             .iter()
-            .filter_map(|&(_, _, p)| completion.saddle(p).map(|(_, s)| s))
+            .filter_map(|&(_, _, p)| saddles.saddle(p).map(|(_, s)| s))
             .collect();
         if strengths.len() < labelled.len() / 2 {
             return None;
         }
         strengths.sort_by(f32::total_cmp);
-        completion.strong = COMPLETION_STRENGTH * strengths[strengths.len() / 2];
-        Some(completion)
+        saddles.strong = COMPLETION_STRENGTH * strengths[strengths.len() / 2];
+        Some(saddles)
     }
 
     /// `p` moved to the saddle the refiner finds near it (within [`REFINED_MOVE`]), or
@@ -262,9 +263,9 @@ impl<'a> Completion<'a> {
 
     /// Whether the image around `centre` is point-symmetric as a checkerboard's X-junction
     /// is (any affine view of it too), unlike the T-junction where the board's outer
-    /// squares meet its border, whose saddle can be as strong: the mean difference between
-    /// opposite samples on a ring (a third of the square, inside the frame) against the
-    /// ring's mean deviation.
+    /// squares meet its border, should the refiner accept a saddle there: the mean
+    /// difference between opposite samples on a ring (a third of the square, inside the
+    /// frame, at least 1.5 px) against the ring's mean deviation.
     fn point_symmetric(&self, centre: [f64; 2], square: f64) -> bool {
         let (width, height) = self.size;
         let room = centre[0]
@@ -543,7 +544,7 @@ mod tests {
         // The board's edge: dark above and light below on the left, its white border right.
         let t_junction = picture(|x, y| f64::from(x > cx || y > cy));
         for (grey, symmetric) in [(&x_junction, true), (&t_junction, false)] {
-            let completion = Completion {
+            let saddles = Saddles {
                 grey,
                 view: ImageView::from_u8_slice(41, 41, grey).unwrap(),
                 refiner: SaddlePointRefiner::new(SaddlePointConfig::default()),
@@ -552,7 +553,7 @@ mod tests {
             };
             for square in [6.0, 24.0] {
                 assert_eq!(
-                    completion.point_symmetric([cx, cy], square),
+                    saddles.point_symmetric([cx, cy], square),
                     symmetric,
                     "{square}"
                 );
@@ -620,8 +621,8 @@ mod tests {
             .map(|&(u, v, p)| (u + 3, v - 1, p))
             .collect();
         assert_eq!(part.len(), 15);
-        let mut completion = Completion::new(&part, &grey, 200, 150).unwrap();
-        let grown = complete_grid(&part, nine_by_six, &mut completion).unwrap();
+        let mut saddles = Saddles::new(&part, &grey, 200, 150).unwrap();
+        let grown = complete_grid(&part, nine_by_six, &mut saddles).unwrap();
         assert_eq!(grown.len(), 54);
         let board = in_board_order(&grown, nine_by_six).unwrap();
         let worst = board
@@ -634,7 +635,7 @@ mod tests {
         // The border's T-junctions do not make a 10 × 6 or 9 × 7 board of it.
         for (cols, rows) in [(10, 6), (9, 7)] {
             let pattern = BoardPattern { cols, rows };
-            assert!(complete_grid(&part, pattern, &mut completion).is_none());
+            assert!(complete_grid(&part, pattern, &mut saddles).is_none());
         }
     }
 
