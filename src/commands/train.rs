@@ -209,12 +209,17 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The settings the recipe options ask for, with the defaults for those not given.
-fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
-    let architecture = match args.arch.unwrap_or(ArchitectureChoice::Fast) {
+/// The network `--arch` names.
+fn architecture(choice: ArchitectureChoice) -> Architecture {
+    match choice {
         ArchitectureChoice::Fast => Architecture::FAST,
         ArchitectureChoice::Accurate => Architecture::ACCURATE,
-    };
+    }
+}
+
+/// The settings the recipe options ask for, with the defaults for those not given.
+fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
+    let architecture = architecture(args.arch.unwrap_or(ArchitectureChoice::Fast));
     let mut settings = TrainSettings::new(architecture);
     if let Some(steps) = args.steps {
         settings.steps = steps as usize;
@@ -269,10 +274,7 @@ fn recipe_of_checkpoint(
     checkpoint: &Checkpoint,
 ) -> anyhow::Result<TrainSettings> {
     let saved = &checkpoint.settings;
-    let arch = args.arch.map(|a| match a {
-        ArchitectureChoice::Fast => Architecture::FAST,
-        ArchitectureChoice::Accurate => Architecture::ACCURATE,
-    });
+    let arch = args.arch.map(architecture);
     let given: [(&str, Option<String>, String); 7] = [
         (
             "--arch",

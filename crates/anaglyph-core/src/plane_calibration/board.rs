@@ -126,7 +126,7 @@ pub fn find_board(
 /// A labelled corner moves to the saddle the refiner finds only when it is this close
 /// (px); farther, the detector's position is kept.
 const REFINED_MOVE: f64 = 0.5;
-/// Saddles starts from at least this share (%) of the pattern's corners labelled.
+/// Growth starts from at least this share (%) of the pattern's corners labelled.
 const MIN_LABELLED_SHARE: usize = 25;
 /// A missing corner is predicted from the known corners at most this many cells away.
 const NEIGHBOURHOOD: i32 = 2;
