@@ -9,7 +9,7 @@ use anaglyph_core::reconstruct::{
     DisparitySearch, FrameLayout, FrameRange, Preset, Products, DEFAULT_SATURATION_LEVEL,
     DEFAULT_WHITE_REFLECTANCE,
 };
-use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
+use anaglyph_core::register::{CoarseToFine, MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::rig::OutOfBand;
 use anaglyph_core::stereo::{Contrast, GreyChannel, LeftRight, MatchMethod};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -742,6 +742,10 @@ pub struct TuningArgs {
     /// How the warp reads each camera at fractional positions [default: lanczos3].
     #[arg(long, value_enum)]
     pub warp_kernel: Option<WarpKernel>,
+    /// Multi-baseline registration coarse to fine: the whole range at half the
+    /// resolution, then a band around those disparities at full resolution.
+    #[arg(long, value_enum, default_value_t = CoarseToFine::Auto)]
+    pub coarse_to_fine: CoarseToFine,
     #[arg(long, value_enum, default_value_t = Solver::Exact)]
     pub solver: Solver,
     /// Admit the warped measurements a camera's own map disputes but the view's depth

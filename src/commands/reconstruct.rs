@@ -178,6 +178,7 @@ fn reconstruct_options(args: &ReconstructArgs) -> ReconstructOptions {
         solver: t.solver,
         matching_image: t.matching_image,
         warp_kernel: t.warp_kernel,
+        coarse_to_fine: t.coarse_to_fine,
         tuning: SolveTuning {
             disputed_tolerance: t.disputed_tolerance,
             scene_prior_inconsistency: t.scene_prior_inconsistency,

@@ -5,7 +5,8 @@
 //! manifest.
 
 use anaglyph_core::register::{
-    multi_baseline_disparities, ArrayGeometry, RegistrationMode, RegistrationSettings, ViewImage,
+    multi_baseline_disparities, ArrayGeometry, CoarseToFine, RegistrationMode,
+    RegistrationSettings, ViewImage,
 };
 use anaglyph_core::stereo::{DisparityRange, GreyImage, MatchingCost, MatchingNetwork};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -57,6 +58,7 @@ fn registration(c: &mut Criterion) {
         mode: RegistrationMode::MultiBaseline,
         cost: MatchingCost::Learned(&network),
         range: DisparityRange::up_to(D).unwrap(),
+        coarse_to_fine: CoarseToFine::Off,
     };
     let once = multi_baseline_disparities(&images, &geometry, &settings, &|_, _| {})
         .expect("registration");

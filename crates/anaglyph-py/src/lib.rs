@@ -38,6 +38,7 @@ fn choices(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("registration", names::<register::RegistrationMode>())?;
     d.set_item("matching_image", names::<register::MatchingImage>())?;
     d.set_item("warp_kernel", names::<register::WarpKernel>())?;
+    d.set_item("coarse_to_fine", names::<register::CoarseToFine>())?;
     d.set_item("model", names::<plane_calibration::PlaneModel>())?;
     Ok(d)
 }

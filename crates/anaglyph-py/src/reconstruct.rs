@@ -16,7 +16,7 @@ use anaglyph_core::reconstruct::{
     Products, ReconstructOptions, SolveTuning, Stage,
 };
 use anaglyph_core::rectify::{Calibration, Homography};
-use anaglyph_core::register::{MatchingImage, RegistrationMode, WarpKernel};
+use anaglyph_core::register::{CoarseToFine, MatchingImage, RegistrationMode, WarpKernel};
 use anaglyph_core::stereo::MatchMethod;
 use anaglyph_core::Error;
 use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -233,7 +233,8 @@ pub struct FrameCarry {
 #[pyo3(signature = (rig, captures, whites=None, darks=None, calibration=None, views=None,
                     preset="default", output="cube", disp_range=None, method="mccnn",
                     model=None, registration="multi-baseline", solver="exact",
-                    matching_image=None, warp_kernel=None, white_reflectance=None,
+                    matching_image=None, warp_kernel=None, coarse_to_fine="auto",
+                    white_reflectance=None,
                     saturation=None, tuning=None, progress=None, store=None, frame=0,
                     frames=None, overwrite=false, arrays=true, skip_done=false,
                     create_only=false, reuse=true, previous=None, frame_darks=None))]
@@ -255,6 +256,7 @@ pub fn reconstruct<'py>(
     solver: &str,
     matching_image: Option<&str>,
     warp_kernel: Option<&str>,
+    coarse_to_fine: &str,
     white_reflectance: Option<f64>,
     saturation: Option<f32>,
     tuning: Option<&str>,
@@ -293,6 +295,7 @@ pub fn reconstruct<'py>(
             .transpose()
             .py()?,
         warp_kernel: warp_kernel.map(WarpKernel::parse_choice).transpose().py()?,
+        coarse_to_fine: CoarseToFine::parse_choice(coarse_to_fine).py()?,
         tuning: tuning
             .map(SolveTuning::from_json)
             .transpose()

@@ -11,7 +11,9 @@ use super::Products;
 use crate::demux::Solver;
 use crate::io::StoreLayout;
 use crate::refine::GuidedRefinement;
-use crate::register::{MatchingImage, RegistrationMode, WarpKernel, DEFAULT_REGISTRATION};
+use crate::register::{
+    CoarseToFine, MatchingImage, RegistrationMode, WarpKernel, DEFAULT_REGISTRATION,
+};
 use crate::rig::Rig;
 use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::{MatchMethod, MatchingCost, MatchingNetwork};
@@ -122,6 +124,7 @@ pub struct ReconstructOptions {
     pub matching_image: Option<MatchingImage>,
     /// None: the preset's.
     pub warp_kernel: Option<WarpKernel>,
+    pub coarse_to_fine: CoarseToFine,
     pub tuning: SolveTuning,
     /// In a sequence, each frame starts from what the previous one learned where that is
     /// sound ([`super::reconstruct_next`]); false: every frame is reconstructed alone.
@@ -143,6 +146,7 @@ impl Default for ReconstructOptions {
             solver: Solver::Exact,
             matching_image: None,
             warp_kernel: None,
+            coarse_to_fine: CoarseToFine::default(),
             tuning: SolveTuning::default(),
             temporal_reuse: true,
         }
@@ -187,6 +191,7 @@ impl ReconstructOptions {
         if let Some(kernel) = self.warp_kernel {
             settings.warp_kernel = kernel;
         }
+        settings.coarse_to_fine = self.coarse_to_fine;
         settings.solve = self.tuning.apply(settings.solve);
         settings.validate()?;
         Ok(settings)
@@ -244,6 +249,7 @@ impl ReconstructOptions {
                 Disparities::Search(_) => settings.registration.name(),
             },
             "matching_image": settings.matching_image.name(),
+            "coarse_to_fine": settings.coarse_to_fine.name(),
             "method": self.method.name(),
             "model": self.model.as_ref().map(|p| p.display().to_string()),
             "disp_range": self.disp_range,

@@ -4,7 +4,8 @@
 use crate::demux::DemuxOptions;
 use crate::disparity::{DisparityMap, DisparityRange};
 use crate::register::{
-    MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel, DEFAULT_REGISTRATION,
+    CoarseToFine, MatchingImage, RegistrationMode, RegistrationSettings, WarpKernel,
+    DEFAULT_REGISTRATION,
 };
 use crate::solve::{ScenePriorSettings, SolveSettings};
 use crate::stereo::MatchingCost;
@@ -120,6 +121,8 @@ pub struct PipelineSettings<'a> {
     /// What multi-baseline registration compares the views by (pairwise registration
     /// always matches luminance).
     pub matching_image: MatchingImage,
+    /// Whether multi-baseline registration goes coarse to fine.
+    pub coarse_to_fine: CoarseToFine,
     /// Reflectance of the white board.
     pub white_reflectance: f64,
     /// Capture values at or above this fraction of full scale are saturated.
@@ -160,6 +163,7 @@ impl<'a> PipelineSettings<'a> {
             cost,
             disparities: Disparities::Search(DisparitySearch::Auto),
             matching_image: preset.matching_image(),
+            coarse_to_fine: CoarseToFine::default(),
             white_reflectance: DEFAULT_WHITE_REFLECTANCE,
             saturation_level: DEFAULT_SATURATION_LEVEL,
             warp_kernel: preset.warp_kernel(),
@@ -189,6 +193,7 @@ impl<'a> PipelineSettings<'a> {
             mode: self.registration,
             cost: self.cost,
             range,
+            coarse_to_fine: self.coarse_to_fine,
         }
     }
 

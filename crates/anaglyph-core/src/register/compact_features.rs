@@ -17,17 +17,15 @@ use std::arch::x86_64::{
 /// differences between disparities.
 pub type CompactFeatures = crate::image::Image<u16>;
 
+/// `v` as bfloat16, rounded to nearest even on the dropped half.
+pub(super) fn to_bf16(v: f32) -> u16 {
+    let bits = v.to_bits();
+    ((bits + 0x7FFF + ((bits >> 16) & 1)) >> 16) as u16
+}
+
 impl From<FeatureMap> for CompactFeatures {
     fn from(map: FeatureMap) -> Self {
-        let data = map
-            .data
-            .iter()
-            .map(|v| {
-                let bits = v.to_bits();
-                // Round to nearest even on the dropped half.
-                ((bits + 0x7FFF + ((bits >> 16) & 1)) >> 16) as u16
-            })
-            .collect();
+        let data = map.data.iter().map(|&v| to_bf16(v)).collect();
         CompactFeatures {
             width: map.width,
             height: map.height,

@@ -139,6 +139,41 @@ impl FeatureProjection {
             });
     }
 
+    /// Dimensions of the projected features.
+    pub fn dims(&self) -> usize {
+        self.dims
+    }
+
+    /// Channels of the features the projection was fitted on.
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// The unit-length projection of one matching image's features (`pixels × channels`)
+    /// into `out` (`pixels × dims`): [`FeatureProjection::merged_maps`] of a projection
+    /// fitted on one image, a strip of pixels at a time. The caller checks that the
+    /// projection has one image and the features its channels.
+    pub(crate) fn project_one(&self, features: &[f32], out: &mut [f32]) {
+        let (c, dims) = (self.channels, self.dims);
+        let pixels = (features.len() / c.max(1)).min(out.len() / dims.max(1));
+        let (features, out) = (&features[..pixels * c], &mut out[..pixels * dims]);
+        out.fill(0.0);
+        faer::linalg::matmul::matmul(
+            faer::MatMut::from_row_major_slice_mut(out, pixels, dims),
+            faer::Accum::Add,
+            faer::MatRef::from_row_major_slice(features, pixels, c),
+            faer::MatRef::from_row_major_slice(&self.blocks[0], c, dims),
+            1.0f32,
+            faer::Par::Seq,
+        );
+        for f in out.chunks_exact_mut(dims) {
+            let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if norm > 0.0 {
+                f.iter_mut().for_each(|v| *v /= norm);
+            }
+        }
+    }
+
     /// The merged, unit-length features of a view's matching images, from their feature
     /// maps (one per matching image, in the order the projection was fitted with).
     pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
@@ -292,5 +327,24 @@ mod tests {
                 .map(|e| e.kind()),
             Some("Raster")
         );
+    }
+
+    /// One image's features projected a strip at a time equal the whole map merged.
+    #[test]
+    fn projecting_one_image_by_strips_equals_merging_its_map() {
+        let (c, dims) = (64, 32);
+        let map = unit_features(500, c, 11);
+        let projection = FeatureProjection::fit(std::slice::from_ref(&map), dims).unwrap();
+        let merged = projection.merged_maps(vec![map.clone()]).unwrap();
+        let mut strips = vec![0f32; 500 * dims];
+        for (src, dst) in map.data.chunks(123 * c).zip(strips.chunks_mut(123 * dims)) {
+            projection.project_one(src, dst);
+        }
+        let off = strips
+            .iter()
+            .zip(&merged.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(off < 1e-5, "{off}");
     }
 }

@@ -45,7 +45,7 @@ pub use common_signal::{
     common_signal_images, common_signals, CommonSignal, MatchingImage, COMMON_SIGNALS,
 };
 pub use geometry::ArrayGeometry;
-pub use multi_baseline::multi_baseline_disparities;
+pub use multi_baseline::{multi_baseline_disparities, COARSE_TO_FINE_PIXELS};
 pub use pairwise::pairwise_disparities;
 pub use search_range::{estimate_search_range, SearchRange};
 pub use warp::{
@@ -74,6 +74,27 @@ crate::choice::named_choices!(RegistrationMode, "registration" {
     Pairwise = "pairwise" "Row and column neighbours matched pairwise, fused.",
 });
 
+/// Whether multi-baseline registration goes coarse to fine: the whole range at half the
+/// resolution, then a band around those disparities at full resolution
+/// ([`multi_baseline_disparities`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CoarseToFine {
+    /// From [`COARSE_TO_FINE_PIXELS`] per view, at every level.
+    #[default]
+    Auto,
+    /// At full resolution whatever the size (the coarse level as `Auto`).
+    On,
+    /// The whole range at full resolution.
+    Off,
+}
+
+crate::choice::named_choices!(CoarseToFine, "coarse-to-fine" {
+    Auto = "auto" "From one megapixel per view: the whole range at half the resolution, then a band around it at full resolution.",
+    On = "on" "Coarse to fine whatever the size.",
+    Off = "off" "The whole range at full resolution (time and memory grow with pixels × range).",
+});
+
 /// The mode `anaglyph reconstruct` and the demo use unless told otherwise (measured in
 /// `examples/light_field_quality.rs`; see docs/reconstruction.md).
 pub const DEFAULT_REGISTRATION: RegistrationMode = RegistrationMode::MultiBaseline;
@@ -86,6 +107,9 @@ pub struct RegistrationSettings<'a> {
     /// Disparities searched, per disparity baseline (signed: an array calibrated to a plane sees
     /// points beyond it at negative disparities).
     pub range: DisparityRange,
+    /// Whether multi-baseline registration goes coarse to fine (pairwise registration
+    /// does not read it).
+    pub coarse_to_fine: CoarseToFine,
 }
 
 /// Half-size of the window of the subpixel refinement of both registration modes (11×11,
@@ -106,6 +130,45 @@ pub struct ViewImage {
     /// its source frame; multi-baseline matching gives such pixels no features, so they
     /// neither match nor attract matches (their disparity comes from SGM's neighbours).
     pub measured: Option<Vec<bool>>,
+}
+
+impl ViewImage {
+    /// The view box-averaged by `factor` (its matching images too where `with_matching`,
+    /// else none), and its measured mask: a coarse pixel is measured only if all its fine
+    /// pixels are. A remainder of fewer than `factor` rows or columns is dropped.
+    pub fn downsampled(&self, factor: usize, with_matching: bool) -> ViewImage {
+        let (w, h) = (self.image.width / factor, self.image.height / factor);
+        let fine_w = self.image.width;
+        let block = |x: usize, y: usize| {
+            (0..factor).flat_map(move |dy| {
+                (0..factor).map(move |dx| (y * factor + dy) * fine_w + x * factor + dx)
+            })
+        };
+        let average = |image: &GreyImage| GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    let sum: f32 = block(i % w, i / w).map(|j| image.data[j]).sum();
+                    sum / (factor * factor) as f32
+                })
+                .collect(),
+        };
+        ViewImage {
+            image: average(&self.image),
+            matching: if with_matching {
+                self.matching.iter().map(average).collect()
+            } else {
+                Vec::new()
+            },
+            measured: self.measured.as_ref().map(|mask| {
+                (0..w * h)
+                    .map(|i| block(i % w, i / w).all(|j| mask[j]))
+                    .collect()
+            }),
+        }
+    }
 }
 
 /// Replaces the NaNs of `row` by the nearest finite value (0 if there is none).

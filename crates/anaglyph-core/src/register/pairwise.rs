@@ -228,6 +228,7 @@ mod tests {
             mode: super::super::RegistrationMode::Pairwise,
             cost: crate::stereo::MatchingCost::Census,
             range: crate::stereo::DisparityRange::up_to(4).unwrap(),
+            coarse_to_fine: super::super::CoarseToFine::Off,
         };
         let error = pairwise_disparities(&images, &geometry, &settings, &|_, _| {})
             .unwrap_err()

@@ -9,9 +9,9 @@
 //! from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
-use super::{register_views, ArrayGeometry, RegistrationSettings, ViewImage};
+use super::{register_views, ArrayGeometry, CoarseToFine, RegistrationSettings, ViewImage};
 use crate::disparity::DisparityMap;
-use crate::stereo::{DisparityRange, GreyImage};
+use crate::stereo::DisparityRange;
 use crate::{Error, Result};
 use serde::Serialize;
 use std::time::Instant;
@@ -51,43 +51,6 @@ pub struct SearchRange {
     pub seconds: f64,
 }
 
-/// Box-averages `image` by `factor` (and its measured mask: a coarse pixel is measured only
-/// if all its fine pixels are).
-fn downsample(view: &ViewImage, factor: usize) -> ViewImage {
-    let (w, h) = (view.image.width / factor, view.image.height / factor);
-    let fine_w = view.image.width;
-    let mut data = Vec::with_capacity(w * h);
-    let mut measured = view.measured.as_ref().map(|_| Vec::with_capacity(w * h));
-    for y in 0..h {
-        for x in 0..w {
-            let (mut sum, mut all) = (0.0f32, true);
-            for dy in 0..factor {
-                for dx in 0..factor {
-                    let i = (y * factor + dy) * fine_w + x * factor + dx;
-                    sum += view.image.data[i];
-                    if let Some(mask) = &view.measured {
-                        all &= mask[i];
-                    }
-                }
-            }
-            data.push(sum / (factor * factor) as f32);
-            if let Some(m) = measured.as_mut() {
-                m.push(all);
-            }
-        }
-    }
-    ViewImage {
-        image: GreyImage {
-            channels: 1,
-            width: w,
-            height: h,
-            data,
-        },
-        matching: Vec::new(),
-        measured,
-    }
-}
-
 /// Estimates the search range of `images` (see the module docs) with the registration
 /// `settings` (their `max_disp` is ignored).
 pub fn estimate_search_range(
@@ -110,7 +73,10 @@ pub fn estimate_search_range(
         s if s >= 120 => 2,
         _ => 1,
     };
-    let coarse: Vec<ViewImage> = images.iter().map(|v| downsample(v, factor)).collect();
+    let coarse: Vec<ViewImage> = images
+        .iter()
+        .map(|v| v.downsampled(factor, false))
+        .collect();
     let coarse_w = w / factor;
     // As many coarse disparities as the array's span allows, and no more than every
     // neighbour's shift fits in the coarse images (a two-camera array spans one baseline:
@@ -134,6 +100,8 @@ pub fn estimate_search_range(
         geometry,
         &RegistrationSettings {
             range: coarse_range,
+            // The estimate is coarse already.
+            coarse_to_fine: CoarseToFine::Off,
             ..*settings
         },
         &|_, _| {},
@@ -235,6 +203,7 @@ fn agreeing_disparities(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stereo::GreyImage;
 
     #[test]
     fn downsampling_averages_and_keeps_unmeasured_pixels_unmeasured() {
@@ -248,7 +217,7 @@ mod tests {
             matching: Vec::new(),
             measured: Some(vec![true, true, true, false, true, true, true, true]),
         };
-        let coarse = downsample(&view, 2);
+        let coarse = view.downsampled(2, false);
         assert_eq!((coarse.image.width, coarse.image.height), (2, 1));
         assert_eq!(coarse.image.data, vec![1.0, 3.0]);
         assert_eq!(coarse.measured, Some(vec![true, false]));

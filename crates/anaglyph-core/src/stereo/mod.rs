@@ -43,5 +43,5 @@ pub use refine::{
     left_right_check, subpixel_disparity, windowed_subpixel, winner_take_all, LEFT_RIGHT_TOLERANCE,
 };
 pub use sgm::{semi_global_matching, SgmParameters};
-pub use tower::{normalise_image, tower_features, FeatureMap};
+pub use tower::{normalise_image, tower_features, tower_features_mapped, FeatureMap};
 pub use zncc::zncc_cost_volume;

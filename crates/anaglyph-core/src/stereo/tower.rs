@@ -176,6 +176,33 @@ fn tower_features_in_strips(
     image: &GreyImage,
     strip_rows: usize,
 ) -> FeatureMap {
+    let channels = network.feature_maps();
+    strips_mapped(network, image, strip_rows, channels, |features, out| {
+        out.copy_from_slice(features)
+    })
+}
+
+/// [`tower_features`] turned strip by strip into an image of `channels` values per pixel:
+/// `map(features, out)` gets a strip's features (pixels × the network's feature maps, as
+/// [`tower_features`] gives them) and writes its pixels' values into `out`. No map of the
+/// whole image's features is held (490 MB of 64 f32 features for a 1600×1200 view).
+pub fn tower_features_mapped<T: Copy + Default + Send>(
+    network: &MatchingNetwork,
+    image: &GreyImage,
+    channels: usize,
+    map: impl Fn(&[f32], &mut [T]) + Sync,
+) -> crate::image::Image<T> {
+    strips_mapped(network, image, STRIP_ROWS, channels, map)
+}
+
+/// [`tower_features_mapped`] with strips of `strip_rows` output rows.
+fn strips_mapped<T: Copy + Default + Send>(
+    network: &MatchingNetwork,
+    image: &GreyImage,
+    strip_rows: usize,
+    channels: usize,
+    map: impl Fn(&[f32], &mut [T]) + Sync,
+) -> crate::image::Image<T> {
     let (w, h) = (image.width, image.height);
     let input = FeatureMap {
         width: w,
@@ -187,20 +214,27 @@ fn tower_features_in_strips(
     let layers: Vec<PreparedLayer> = (network.conv.iter().enumerate())
         .map(|(i, layer)| PreparedLayer::new(layer, i + 1 < depth || network.is_accurate()))
         .collect();
-    let channels = layers.last().map_or(1, |l| l.layer.outputs);
-    let mut data = vec![0f32; w * h * channels];
+    let features = layers.last().map_or(1, |l| l.layer.outputs);
+    let mut data = vec![T::default(); w * h * channels];
     let strip_len = strip_rows.max(1) * w * channels;
     data.par_chunks_mut(strip_len.max(1))
         .enumerate()
-        .for_each_init(StripScratch::default, |scratch, (strip, out)| {
-            let first = strip * strip_rows;
-            let rows = first..first + out.len() / (w * channels);
-            strip_features(&input, &layers, rows, out, scratch);
-            if !network.is_accurate() {
-                out.chunks_exact_mut(channels).for_each(normalise_l2);
-            }
-        });
-    FeatureMap {
+        .for_each_init(
+            || (StripScratch::default(), Vec::new()),
+            |(scratch, strip_features_buffer), (strip, out)| {
+                let first = strip * strip_rows;
+                let rows = first..first + out.len() / (w * channels).max(1);
+                strip_features_buffer.resize(rows.len() * w * features, 0.0);
+                strip_features(&input, &layers, rows, strip_features_buffer, scratch);
+                if !network.is_accurate() {
+                    strip_features_buffer
+                        .chunks_exact_mut(features)
+                        .for_each(normalise_l2);
+                }
+                map(strip_features_buffer, out);
+            },
+        );
+    crate::image::Image {
         width: w,
         height: h,
         channels,

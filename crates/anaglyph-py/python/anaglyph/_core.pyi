@@ -191,6 +191,7 @@ def reconstruct(
     solver: str = "exact",
     matching_image: str | None = None,
     warp_kernel: str | None = None,
+    coarse_to_fine: str = "auto",
     white_reflectance: float | None = None,
     saturation: float | None = None,
     tuning: str | None = None,

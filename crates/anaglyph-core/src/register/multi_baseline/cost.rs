@@ -53,6 +53,25 @@ impl<'a> PointCosts<'a> {
         multi_view_cost_volume(self.features, self.geometry, reference, range)
     }
 
+    /// The cost volume over `range` of the window `columns` × `rows` of view `reference`
+    /// (equal to that window of [`PointCosts::volume`]).
+    pub fn window_volume(
+        &self,
+        reference: usize,
+        (columns, rows): (Range<usize>, Range<usize>),
+        range: DisparityRange,
+    ) -> CostVolume {
+        let window = Window { columns, rows };
+        cost_volume_with(
+            self.kernel,
+            self.features,
+            self.geometry,
+            reference,
+            range,
+            window,
+        )
+    }
+
     /// View `reference`'s costs at every pixel's disparity + [`HALF_STEPS`].
     pub fn half_steps(&self, reference: usize, disparity: &[f32]) -> Vec<[f32; 4]> {
         half_step_costs(
@@ -72,6 +91,7 @@ impl<'a> PointCosts<'a> {
                 others: &self.others[reference],
                 reference: &self.features[reference],
                 y,
+                columns: 0..self.size().0,
             };
             match self.kernel {
                 // The dot products of the neighbours' products, for the same rounding.
@@ -125,10 +145,23 @@ pub fn multi_view_cost_volume(
     range: DisparityRange,
 ) -> CostVolume {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    cost_volume_with(kernel, features, geometry, reference, range)
+    let fr = &features[reference];
+    let window = Window {
+        columns: 0..fr.width,
+        rows: 0..fr.height,
+    };
+    cost_volume_with(kernel, features, geometry, reference, range, window)
 }
 
-/// [`multi_view_cost_volume`] with the given build of the dot products.
+/// A window of a view: the columns and rows a cost volume covers.
+#[derive(Debug, Clone)]
+struct Window {
+    columns: Range<usize>,
+    rows: Range<usize>,
+}
+
+/// [`multi_view_cost_volume`] of the `window` of the reference, with the given build of
+/// the dot products.
 ///
 /// Each task takes a few reference rows ([`rows_per_task`]) and, disparity by disparity,
 /// each of its rows against every other view, so that the per-half sums of one (row,
@@ -141,43 +174,45 @@ fn cost_volume_with(
     geometry: &ArrayGeometry,
     reference: usize,
     range: DisparityRange,
+    window: Window,
 ) -> CostVolume {
     let fr = &features[reference];
     let disparities = range.count();
     let (w, c) = (fr.width, fr.channels);
+    let (columns, top) = (window.columns.clone(), window.rows.start);
+    let ww = columns.len();
     let others = others_of(geometry, reference);
     let members: Vec<Vec<usize>> = others
         .iter()
         .map(|(_, _, halves)| (0..HALVES).filter(|&k| halves[k]).collect())
         .collect();
-    let mut volume = CostVolume::new(w, fr.height, range);
-    if w == 0 || disparities == 0 {
+    let mut volume = CostVolume::new(ww, window.rows.len(), range);
+    if ww == 0 || disparities == 0 {
         return volume;
     }
-    let rows_per_task = rows_per_task(w * c * std::mem::size_of::<u16>());
+    let rows_per_task = rows_per_task(ww * c * std::mem::size_of::<u16>());
     volume
         .data
-        .par_chunks_mut(rows_per_task * w * disparities)
+        .par_chunks_mut(rows_per_task * ww * disparities)
         .enumerate()
         .for_each_init(
             // Per thread: running sums and counts of one (row, disparity) per half-array,
             // laid out [half][x]; the task's reference rows widened to f32 (AVX2 and
             // portable builds).
-            || (vec![0f32; HALVES * w], vec![0u16; HALVES * w], Vec::new()),
+            || (vec![0f32; HALVES * ww], vec![0u16; HALVES * ww], Vec::new()),
             |(sums, counts, widened), (block, rows)| {
-                let first = block * rows_per_task;
-                let count = rows.len() / (w * disparities);
+                let first = top + block * rows_per_task;
+                let count = rows.len() / (ww * disparities);
                 if kernel != DotKernel::Avx512Bf16 {
                     widened.clear();
-                    widened.extend(
-                        fr.data[first * w * c..(first + count) * w * c]
-                            .iter()
-                            .map(|&v| widen(v)),
-                    );
+                    for y in first..first + count {
+                        let row = &fr.data[(y * w + columns.start) * c..(y * w + columns.end) * c];
+                        widened.extend(row.iter().map(|&v| widen(v)));
+                    }
                 }
                 for k in 0..disparities {
                     let d = range.at(k) as f64;
-                    for (i, row) in rows.chunks_exact_mut(w * disparities).enumerate() {
+                    for (i, row) in rows.chunks_exact_mut(ww * disparities).enumerate() {
                         sums.fill(0.0);
                         counts.fill(0);
                         let job = RowJob {
@@ -185,10 +220,11 @@ fn cost_volume_with(
                             others: &others,
                             reference: fr,
                             y: first + i,
+                            columns: columns.clone(),
                         };
                         let widened_row = &widened[..];
                         let widened_row =
-                            widened_row.get(i * w * c..(i + 1) * w * c).unwrap_or(&[]);
+                            widened_row.get(i * ww * c..(i + 1) * ww * c).unwrap_or(&[]);
                         match kernel {
                             // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
                             // features have a multiple of 32 channels (`for_channels`).
@@ -206,7 +242,7 @@ fn cost_volume_with(
                         for (x, cost) in row.iter_mut().skip(k).step_by(disparities).enumerate() {
                             let mut best = CostVolume::INVALID;
                             for k in 0..HALVES {
-                                let j = k * w + x;
+                                let j = k * ww + x;
                                 if counts[j] > 0 {
                                     best = best.min(sums[j] / counts[j] as f32);
                                 }
@@ -245,6 +281,9 @@ struct RowJob<'a> {
     others: &'a [(usize, (f64, f64), [bool; HALVES])],
     reference: &'a CompactFeatures,
     y: usize,
+    /// The reference columns a cost volume's row covers (its sums are laid out
+    /// `[half][x − columns.start]`).
+    columns: Range<usize>,
 }
 
 /// [`accumulate_widened`] compiled for AVX2 + FMA (the build targets baseline x86-64;
@@ -283,6 +322,7 @@ fn accumulate_avx512_bf16(
     };
     let fr = job.reference;
     let (w, c) = (fr.width, fr.channels);
+    let (x0, ww) = (job.columns.start, job.columns.len());
     let row = &fr.data[job.y * w * c..][..w * c];
     let (half, one) = (_mm512_set1_ps(0.5), _mm512_set1_ps(1.0));
     for_each_view_at(job, members, d, |segment| {
@@ -307,7 +347,7 @@ fn accumulate_avx512_bf16(
                 one,
             );
             for &k in segment.members {
-                let j = k * w + x;
+                let j = k * ww + x - x0;
                 let (sum, count) = (&mut sums[j..j + 16], &mut counts[j..j + 16]);
                 // SAFETY: `sum` holds 16 f32 and `count` 16 u16, what the unaligned loads
                 // and stores read and write.
@@ -326,10 +366,10 @@ fn accumulate_avx512_bf16(
             let a = &row[x * c..][..c];
             add_cost(
                 &segment,
-                x,
+                x - x0,
                 sums,
                 counts,
-                w,
+                ww,
                 |b| dot_avx512_bf16(a, b),
                 xs * c,
                 c,
@@ -349,15 +389,16 @@ fn accumulate_widened(
     counts: &mut [u16],
     widened_row: &[f32],
 ) {
-    let c = job.reference.channels;
+    let (c, x0) = (job.reference.channels, job.columns.start);
     accumulate(job, members, d, sums, counts, |x, b| {
-        dot_widened(&widened_row[x * c..][..c], b)
+        dot_widened(&widened_row[(x - x0) * c..][..c], b)
     });
 }
 
 /// Adds the costs of reference row `job.y` at disparity `d` against every other view to
-/// the per-half sums and counts (layout `[half][x]`). `similarity(x, feature)` is the dot
-/// product of the reference's feature at column x with another view's feature.
+/// the per-half sums and counts (layout `[half][x − job.columns.start]`).
+/// `similarity(x, feature)` is the dot product of the reference's feature at column x
+/// with another view's feature.
 #[inline(always)]
 fn accumulate(
     job: &RowJob<'_>,
@@ -367,16 +408,17 @@ fn accumulate(
     counts: &mut [u16],
     similarity: impl Fn(usize, &[u16]) -> f32,
 ) {
-    let (w, c) = (job.reference.width, job.reference.channels);
+    let c = job.reference.channels;
+    let (x0, ww) = (job.columns.start, job.columns.len());
     for_each_view_at(job, members, d, |segment| {
         for x in segment.columns.clone() {
             let xs = (x as isize + segment.offset) as usize;
             add_cost(
                 &segment,
-                x,
+                x - x0,
                 sums,
                 counts,
-                w,
+                ww,
                 |b| similarity(x, b),
                 xs * c,
                 c,
@@ -385,8 +427,8 @@ fn accumulate(
     });
 }
 
-/// Adds column x's cost in `segment` to the sums and counts (`[half][x]`, rows of `w`) of
-/// its half-arrays; `product` is the dot product of the reference's feature with one of
+/// Adds a column's cost in `segment` to the sums and counts (`[half][x]`, rows of `w`;
+/// x counted from the window's first column) of its half-arrays; `product` is the dot product of the reference's feature with one of
 /// the view's, whose feature starts at `at` in the segment's rows of `c` channels.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -419,7 +461,7 @@ struct Segment<'a> {
     members: &'a [usize],
     /// Reference column x meets the view's column x + offset.
     offset: isize,
-    /// The reference columns whose match lies inside the view.
+    /// The job's reference columns whose match lies inside the view.
     columns: Range<usize>,
     /// The view's features on the row at or above the match.
     row: &'a [u16],
@@ -448,8 +490,8 @@ fn for_each_view_at(
         let fy = (ys - y0 as f64) as f32;
         let two_rows = fy as f64 > WHOLE_ROW && y0 + 1 < h;
         let offset = (sx * d).round() as isize;
-        let x_lo = (-offset).max(0) as usize;
-        let x_hi = (w as isize - offset.max(0)).max(0) as usize;
+        let x_lo = ((-offset).max(0) as usize).max(job.columns.start);
+        let x_hi = ((w as isize - offset.max(0)).max(0) as usize).min(job.columns.end);
         if x_lo >= x_hi {
             continue;
         }
@@ -575,6 +617,7 @@ fn half_step_costs_with(
             others: &others,
             reference: fr,
             y,
+            columns: 0..w,
         };
         let disparity = &disparity[y * w..(y + 1) * w];
         match kernel {
@@ -642,26 +685,48 @@ fn half_step_row_avx512_bf16(
     })
 }
 
+/// Per pixel, its costs in `raw` at its whole disparity − 2 … + 2 (NaN outside the
+/// volume's range): what [`half_step_subpixel`] reads of a pixel's whole steps.
+pub(super) fn whole_steps(raw: &CostVolume, disparity: &[f32]) -> Vec<[f32; 5]> {
+    let dm = raw.count();
+    raw.data
+        .par_chunks(dm.max(1))
+        .zip(disparity)
+        .map(|(costs, &d)| {
+            let mut steps = [f32::NAN; 5];
+            if let Some(k) = raw.index_of(d) {
+                for (j, step) in steps.iter_mut().enumerate() {
+                    if let Some(&cost) = (k + j).checked_sub(2).and_then(|kk| costs.get(kk)) {
+                        *step = cost;
+                    }
+                }
+            }
+            steps
+        })
+        .collect()
+}
+
 /// [`crate::stereo::windowed_subpixel`] on a half-pixel grid: the window sums of the costs at k − 1,
-/// k − ½, k, k + ½, k + 1 (whole steps from the raw volume, half steps from
-/// [`half_step_costs`]), an equiangular fit around the least of the three central ones.
+/// k − ½, k, k + ½, k + 1 (whole steps from the raw volume, [`whole_steps`], half steps
+/// from [`half_step_costs`]), an equiangular fit around the least of the three central
+/// ones. A pixel whose disparity ± 1 lies outside its volume's range keeps it.
 /// A finer grid shrinks the fit's bias towards its samples: on the tabletop at 640×480 the
 /// bias at a true offset of 0.3 px fell from −0.07 to −0.02 px and r0c0 gained 0.3 dB
 /// (the half steps cost 5 s for 8 views).
 pub(super) fn half_step_subpixel(
-    raw: &CostVolume,
+    (w, h): (usize, usize),
+    whole: &[[f32; 5]],
     half: &[[f32; 4]],
     disparity: &[f32],
     radius: usize,
 ) -> Vec<f32> {
-    let (w, h, dm) = (raw.width, raw.height, raw.count());
     (0..w * h)
         .into_par_iter()
         .map(|i| {
             let d = disparity[i];
-            let Some(k) = raw.index_of(d).filter(|&k| k >= 1 && k + 1 < dm) else {
+            if !(whole[i][1].is_finite() && whole[i][3].is_finite()) {
                 return d;
-            };
+            }
             let (x, y) = (i % w, i / w);
             let mut c = [0f32; 5];
             for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
@@ -671,15 +736,16 @@ pub(super) fn half_step_subpixel(
                     if !((dq - d).abs() <= 1.0) {
                         continue;
                     }
-                    // q's half steps sit at dq − 1.5 … dq + 1.5: d − ½ is slot d − dq + 1.
+                    // q's steps sit at dq − 2 … dq + 2 (whole) and dq − 1.5 … dq + 1.5
+                    // (half): d − 1 is whole slot d − dq + 1, d − ½ half slot d − dq + 1.
                     let slot = ((d - dq) as isize + 1) as usize;
-                    let whole = &raw.data[q * dm + k - 1..][..3];
+                    let steps = &whole[q][slot..][..3];
                     let values = [
-                        whole[0],
+                        steps[0],
                         half[q][slot],
-                        whole[1],
+                        steps[1],
                         half[q][slot + 1],
-                        whole[2],
+                        steps[2],
                     ];
                     if values.iter().all(|v| v.is_finite()) {
                         for (sum, v) in c.iter_mut().zip(values) {
@@ -788,7 +854,8 @@ mod tests {
         let whole = winner_take_all(&volume);
         let neighbours = neighbour_products(DotKernel::Portable, &features);
         let half = half_step_costs(&features, &neighbours, &geometry, 0, &whole);
-        let fine = half_step_subpixel(&volume, &half, &whole, 3);
+        let steps = whole_steps(&volume, &whole);
+        let fine = half_step_subpixel((w, h), &steps, &half, &whole, 3);
         let coarse = crate::stereo::windowed_subpixel(&volume, &whole, 3);
         let (x, y) = (20, 8);
         let i = y * w + x;
@@ -837,8 +904,18 @@ mod tests {
         let kernels = DotKernel::available(c);
         assert_eq!(kernels.last(), Some(&DotKernel::Portable));
         let reference = 5; // r1c1: views on every side
-        let portable =
-            cost_volume_with(DotKernel::Portable, &features, &geometry, reference, range);
+        let whole = || Window {
+            columns: 0..w,
+            rows: 0..h,
+        };
+        let portable = cost_volume_with(
+            DotKernel::Portable,
+            &features,
+            &geometry,
+            reference,
+            range,
+            whole(),
+        );
         let portable_half = half_step_costs_with(
             DotKernel::Portable,
             &features,
@@ -848,7 +925,29 @@ mod tests {
             &disparity,
         );
         for &kernel in &kernels {
-            let volume = cost_volume_with(kernel, &features, &geometry, reference, range);
+            let volume = cost_volume_with(kernel, &features, &geometry, reference, range, whole());
+            // A window of the volume (columns past one 16-wide block) is the same window
+            // of the whole one (to rounding: the AVX-512 build's blocks of sixteen columns
+            // start where the window does).
+            let (columns, rows) = (5..27, 3..10);
+            let window = Window {
+                columns: columns.clone(),
+                rows: rows.clone(),
+            };
+            let part = cost_volume_with(kernel, &features, &geometry, reference, range, window);
+            let n = range.count();
+            for (i, y) in rows.enumerate() {
+                for (j, x) in columns.clone().enumerate() {
+                    let at_part = &part.data[(i * columns.len() + j) * n..][..n];
+                    let at_whole = &volume.data[(y * w + x) * n..][..n];
+                    let off = at_part
+                        .iter()
+                        .zip(at_whole)
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0f32, f32::max);
+                    assert!(off < 1e-6, "{kernel:?}: window at ({x}, {y}) off by {off}");
+                }
+            }
             let worst = volume
                 .data
                 .iter()

@@ -38,28 +38,37 @@
 //!   -> vote        the neighbours' maps vote on each region's plane
 //! ```
 //!
+//! Large views go coarse to fine ([`coarse_to_fine`], from [`COARSE_TO_FINE_PIXELS`] by
+//! default): the chain above at half the resolution over half the range, then at full
+//! resolution tile by tile over a band around the upsampled coarse disparities, with the
+//! same subpixel fit and filters after it (docs/reconstruction.md, "Coarse to fine").
+//!
 //! In: every view's image (and matching images), the array geometry, the settings.
 //! Out: a disparity map per view, per-stage timings and the pixels moved to planes.
 
 mod cost;
 
-use super::compact_features::CompactFeatures;
+use super::compact_features::{to_bf16, CompactFeatures};
 use super::feature_projection::FeatureProjection;
 use super::{
     apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
-    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, RegionPlane,
-    Registration, RegistrationSettings, ViewImage, SUBPIXEL_WINDOW_RADIUS,
+    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, CoarseToFine,
+    RegionPlane, Registration, RegistrationSettings, ViewImage, SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::stereo::{
-    median_filter, semi_global_matching, tower_features, unit_range, winner_take_all,
-    DisparityRange, FeatureMap, GreyImage, MatchSettings, MatchingCost, MatchingNetwork,
+    median_filter, semi_global_matching, tower_features, tower_features_mapped, unit_range,
+    winner_take_all, CostVolume, DisparityRange, FeatureMap, GreyImage, MatchSettings,
+    MatchingCost, MatchingNetwork,
 };
 use crate::{Error, Result};
-use cost::{half_step_subpixel, PointCosts};
+use cost::{half_step_subpixel, whole_steps, PointCosts};
+use rayon::prelude::*;
+use std::ops::Range;
 use std::time::Instant;
 
-/// Multi-baseline registration of every view (see the module docs), stage by stage.
+/// Multi-baseline registration of every view (see the module docs), stage by stage;
+/// coarse to fine ([`coarse_to_fine`]) as `settings.coarse_to_fine` says.
 pub fn multi_baseline_disparities(
     images: &[ViewImage],
     geometry: &ArrayGeometry,
@@ -67,18 +76,222 @@ pub fn multi_baseline_disparities(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
     let network = fast_network(settings)?;
+    let (w, h) = (images[0].image.width, images[0].image.height);
+    let coarse_to_fine_here = match settings.coarse_to_fine {
+        CoarseToFine::Auto => w * h >= COARSE_TO_FINE_PIXELS,
+        CoarseToFine::On => true,
+        CoarseToFine::Off => false,
+    };
+    // The coarse level needs room for the tower's receptive field and two disparities.
+    if coarse_to_fine_here && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE {
+        return coarse_to_fine(images, geometry, settings, progress);
+    }
     let mut timings = Vec::new();
-
     let clock = Instant::now();
-    let features = view_features(network, images)?;
+    let features = view_features(network, images, None)?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let matched = match_views(images, &costs, settings, &mut timings, progress);
-    let clock = Instant::now();
-    let smoothed: Vec<Vec<f32>> = (0..images.len())
-        .map(|i| checked_filled_smoothed(&matched.raw, &costs, i))
+    finish(matched, &costs, settings.range, timings)
+}
+
+/// Matching images (the leading common signals) the fine level compares by: the coarse
+/// level, with all of them, has told apart the materials that look alike in one, and the
+/// fine level only searches a band around its disparities.
+const FINE_SIGNALS: usize = 1;
+
+/// Dimensions the fine level's features are projected onto (a [`FeatureProjection`]
+/// fitted on the first view): half the memory and dot products of the network's 64.
+/// On the 3×3 narrow-band array at 1600×1200 (tabletop), 32 kept 98.7 % of the
+/// features' energy and gave the bad-1 of 64 (6.77 %) at 2.6 instead of 3.6 GB peak;
+/// 16 kept 91 % and 6.80 %, but leaves the AVX-512 BF16 products (which take multiples of
+/// 32) for slower ones.
+const FINE_DIMS: usize = 32;
+
+/// Views of at least this many pixels are registered coarse to fine by default
+/// ([`CoarseToFine::Auto`]): a 1600×1200 view (1.9 Mpx), not an 800×600 one.
+pub const COARSE_TO_FINE_PIXELS: usize = 1_000_000;
+
+/// Least side of a coarse level, in pixels.
+const MIN_COARSE_SIDE: usize = 32;
+
+/// Side of the square tiles the fine level searches, each over its own band of
+/// disparities.
+const TILE: usize = 128;
+/// Pixels each tile's volume and SGM reach beyond the tile on every side, so that SGM's
+/// paths do not start at the tile's edge.
+const TILE_MARGIN: usize = 16;
+/// Full-resolution pixels of disparity a tile's band reaches beyond the least and the
+/// greatest upsampled coarse disparity over it (a coarse pixel off by one is two here).
+const BAND_MARGIN: f32 = 3.0;
+/// Fraction of a tile's coarse disparities that no neighbouring view confirms above
+/// which the tile searches the whole range.
+const UNSURE_FRACTION: f64 = 0.25;
+
+/// Coarse-to-fine registration: every view registered at half the resolution over half
+/// the range (the whole pipeline, itself coarse to fine while the views stay large),
+/// then at full resolution tile by tile, each tile's cost volume and SGM over a band
+/// around the upsampled coarse disparities under it (the whole range where the coarse
+/// maps of the neighbouring views do not confirm them), then the same subpixel fit and
+/// filters as one level. The volumes and SGM cost pixels × the bands instead of pixels ×
+/// the range.
+fn coarse_to_fine(
+    images: &[ViewImage],
+    geometry: &ArrayGeometry,
+    settings: &RegistrationSettings<'_>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Registration> {
+    let network = fast_network(settings)?;
+    let coarse_images: Vec<ViewImage> = images.iter().map(|v| v.downsampled(2, true)).collect();
+    let coarse_settings = RegistrationSettings {
+        range: settings.range.scaled(0.5),
+        coarse_to_fine: CoarseToFine::Auto,
+        ..*settings
+    };
+    let coarse =
+        multi_baseline_disparities(&coarse_images, geometry, &coarse_settings, &|_, _| {})?;
+    drop(coarse_images);
+    let mut timings: Vec<(String, f64)> = coarse
+        .timings
+        .iter()
+        .map(|(name, seconds)| (format!("coarse: {name}"), *seconds))
         .collect();
-    let planes = planes_by_vote(&smoothed, &matched.ambiguities, &costs, settings.range);
+    let clock = Instant::now();
+    let fine_images: Vec<ViewImage> = images
+        .iter()
+        .map(|v| ViewImage {
+            image: v.image.clone(),
+            matching: v.matching.iter().take(FINE_SIGNALS).cloned().collect(),
+            measured: v.measured.clone(),
+        })
+        .collect();
+    let features = view_features(network, &fine_images, Some(FINE_DIMS))?;
+    drop(fine_images);
+    let costs = PointCosts::new(&features, geometry);
+    timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
+    let guides: Vec<BandGuide> = (0..images.len())
+        .map(|i| BandGuide::of(&coarse.disparities, geometry, i))
+        .collect();
+    let matched = match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress);
+    finish(matched, &costs, settings.range, timings)
+}
+
+/// A view's coarse map and which of its pixels a neighbouring view's coarse map confirms:
+/// what the fine level's bands come from.
+struct BandGuide {
+    map: DisparityMap,
+    confirmed: Vec<bool>,
+}
+
+impl BandGuide {
+    fn of(coarse: &[DisparityMap], geometry: &ArrayGeometry, i: usize) -> Self {
+        let confirmed = confirmed_by_neighbours(coarse, geometry, i)
+            .data
+            .iter()
+            .map(|d| d.is_finite())
+            .collect();
+        BandGuide {
+            map: coarse[i].clone(),
+            confirmed,
+        }
+    }
+
+    /// The disparities the fine level searches over the full-resolution window
+    /// `columns` × `rows`: the upsampled coarse disparities under it ± [`BAND_MARGIN`]
+    /// within `whole`, or all of `whole` where the coarse map is unknown or unsure there.
+    fn band(
+        &self,
+        columns: &Range<usize>,
+        rows: &Range<usize>,
+        whole: DisparityRange,
+    ) -> DisparityRange {
+        let (cw, ch) = (self.map.width, self.map.height);
+        if cw == 0 || ch == 0 {
+            return whole;
+        }
+        let coarse = |v: usize, n: usize| (v / 2).min(n - 1);
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        let (mut unsure, mut total) = (0usize, 0usize);
+        for cy in coarse(rows.start, ch)..=coarse(rows.end - 1, ch) {
+            for cx in coarse(columns.start, cw)..=coarse(columns.end - 1, cw) {
+                let i = cy * cw + cx;
+                let d = 2.0 * self.map.data[i];
+                if !d.is_finite() {
+                    return whole;
+                }
+                (lo, hi) = (lo.min(d), hi.max(d));
+                unsure += usize::from(!self.confirmed[i]);
+                total += 1;
+            }
+        }
+        if unsure as f64 > UNSURE_FRACTION * total as f64 {
+            return whole;
+        }
+        let min = ((lo - BAND_MARGIN).floor() as i32).max(whole.min);
+        let max = ((hi + BAND_MARGIN).ceil() as i32 + 1).min(whole.max);
+        DisparityRange::new(min, max).unwrap_or(whole)
+    }
+}
+
+impl BandGuide {
+    /// `volume` (of the window `columns` × `rows`) with a cost added to each disparity
+    /// more than [`PULL_FREE`] from the upsampled coarse one: [`PULL`] per pixel, at most
+    /// [`PULL_CAP`]. Where the view has no texture its costs are flat and SGM's short
+    /// paths in a tile would settle anywhere in the band; the coarse level, whose paths
+    /// cross the whole image, decides there instead.
+    fn pulled_towards(
+        &self,
+        volume: &CostVolume,
+        columns: &Range<usize>,
+        rows: &Range<usize>,
+    ) -> CostVolume {
+        let (cw, ch) = (self.map.width, self.map.height);
+        let n = volume.count();
+        let mut pulled = volume.clone();
+        if cw == 0 || ch == 0 {
+            return pulled;
+        }
+        for (t, costs) in pulled.data.chunks_exact_mut(n.max(1)).enumerate() {
+            let (x, y) = (
+                columns.start + t % volume.width,
+                rows.start + t / volume.width,
+            );
+            let g = 2.0 * self.map.data[(y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1)];
+            if !g.is_finite() {
+                continue;
+            }
+            for (k, cost) in costs.iter_mut().enumerate() {
+                let off = (volume.range.at(k) - g).abs() - PULL_FREE;
+                if off > 0.0 {
+                    *cost += (PULL * off).min(PULL_CAP);
+                }
+            }
+        }
+        pulled
+    }
+}
+
+/// Disparities within this many pixels of the upsampled coarse one cost nothing extra
+/// ([`BandGuide::pulled_towards`]).
+const PULL_FREE: f32 = 1.5;
+/// Cost added per pixel of disparity beyond [`PULL_FREE`].
+const PULL: f32 = 0.02;
+/// Most cost added.
+const PULL_CAP: f32 = 0.2;
+
+/// The stages after matching, alike at one level and at the fine level: each view's map
+/// checked, filled and smoothed, then its ambiguous regions moved to their planes.
+fn finish(
+    matched: MatchedViews,
+    costs: &PointCosts<'_>,
+    range: DisparityRange,
+    mut timings: Vec<(String, f64)>,
+) -> Result<Registration> {
+    let clock = Instant::now();
+    let smoothed: Vec<Vec<f32>> = (0..matched.raw.len())
+        .map(|i| checked_filled_smoothed(&matched.raw, costs, i))
+        .collect();
+    let planes = planes_by_vote(&smoothed, &matched.ambiguities, costs, range);
     timings.push((
         "cross-check, fill, median, planes".to_string(),
         clock.elapsed().as_secs_f64(),
@@ -155,12 +368,14 @@ fn match_views(
             )),
             None => winner_take_all(&volume),
         };
+        let whole = whole_steps(&volume, &disparity);
+        drop(volume);
         let half = costs.half_steps(i, &disparity);
         matched.raw.push(DisparityMap {
             width: w,
             height: h,
             convention: DisparityConvention::ColumnStep,
-            data: half_step_subpixel(&volume, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
+            data: half_step_subpixel((w, h), &whole, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
         });
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
@@ -168,6 +383,142 @@ fn match_views(
     timings.push(("multi-view cost".to_string(), cost_seconds));
     timings.push(("SGM + subpixel".to_string(), refine_seconds));
     matched
+}
+
+/// [`match_views`] at the fine level of [`coarse_to_fine`]: each view tile by tile, each
+/// tile's cost volume, SGM and winner-take-all over its band ([`BandGuide::band`]) in a
+/// window [`TILE_MARGIN`] wider, then the half-step subpixel fit over the whole view.
+fn match_views_in_bands(
+    images: &[ViewImage],
+    costs: &PointCosts<'_>,
+    settings: &RegistrationSettings<'_>,
+    guides: &[BandGuide],
+    timings: &mut Vec<(String, f64)>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> MatchedViews {
+    let (w, h) = costs.size();
+    let chain = MatchSettings::for_cost(&settings.cost, settings.range);
+    let tiles: Vec<(Range<usize>, Range<usize>)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| {
+            (0..w.div_ceil(TILE)).map(move |tx| {
+                (
+                    tx * TILE..((tx + 1) * TILE).min(w),
+                    ty * TILE..((ty + 1) * TILE).min(h),
+                )
+            })
+        })
+        .collect();
+    let widen = |r: &Range<usize>, n: usize| {
+        r.start.saturating_sub(TILE_MARGIN)..(r.end + TILE_MARGIN).min(n)
+    };
+    let (mut band_seconds, mut refine_seconds) = (0.0, 0.0);
+    let (mut searched, mut fallbacks) = (0usize, 0usize);
+    let mut matched = MatchedViews {
+        raw: Vec::with_capacity(images.len()),
+        ambiguities: Vec::with_capacity(images.len()),
+    };
+    for (i, view) in images.iter().enumerate() {
+        let clock = Instant::now();
+        let guide_image = unit_range(&view.image);
+        let mut disparity = vec![0f32; w * h];
+        let mut whole = vec![[f32::NAN; 5]; w * h];
+        let mut ambiguity = Ambiguity {
+            width: w,
+            height: h,
+            ambiguous: vec![false; w * h],
+            median_cost: vec![f32::NAN; w * h],
+        };
+        let results: Vec<TileResult> = tiles
+            .par_iter()
+            .map(|(columns, rows)| {
+                let (wc, wr) = (widen(columns, w), widen(rows, h));
+                let band = guides[i].band(&wc, &wr, settings.range);
+                let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
+                let tile_disparity = match &chain.sgm {
+                    Some(p) => {
+                        let guide = crop(&guide_image, &wc, &wr);
+                        let flat = GreyImage {
+                            data: vec![0.0; guide.data.len()],
+                            ..guide.clone()
+                        };
+                        let guided = guides[i].pulled_towards(&volume, &wc, &wr);
+                        winner_take_all(&semi_global_matching(&guided, &guide, &flat, p))
+                    }
+                    None => winner_take_all(&volume),
+                };
+                TileResult {
+                    window: (wc, wr),
+                    band,
+                    whole: whole_steps(&volume, &tile_disparity),
+                    ambiguity: Ambiguity::of_volume(&volume),
+                    disparity: tile_disparity,
+                }
+            })
+            .collect();
+        for ((columns, rows), tile) in tiles.iter().zip(results) {
+            let (wc, wr) = &tile.window;
+            let tw = wc.len();
+            searched += tile.band.count();
+            fallbacks += usize::from(tile.band == settings.range);
+            for y in rows.clone() {
+                for x in columns.clone() {
+                    let (p, t) = (y * w + x, (y - wr.start) * tw + x - wc.start);
+                    disparity[p] = tile.disparity[t];
+                    whole[p] = tile.whole[t];
+                    ambiguity.ambiguous[p] = tile.ambiguity.ambiguous[t];
+                    ambiguity.median_cost[p] = tile.ambiguity.median_cost[t];
+                }
+            }
+        }
+        band_seconds += clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let half = costs.half_steps(i, &disparity);
+        matched.raw.push(DisparityMap {
+            width: w,
+            height: h,
+            convention: DisparityConvention::ColumnStep,
+            data: half_step_subpixel((w, h), &whole, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
+        });
+        matched.ambiguities.push(ambiguity);
+        refine_seconds += clock.elapsed().as_secs_f64();
+        progress(i + 1, images.len());
+    }
+    let count = (tiles.len() * images.len()).max(1);
+    tracing::info!(
+        "fine level: {:.1} disparities per tile on average (of {}), {fallbacks} of {count} tiles over the whole range",
+        searched as f64 / count as f64,
+        settings.range.count()
+    );
+    timings.push(("multi-view cost + SGM in bands".to_string(), band_seconds));
+    timings.push(("subpixel".to_string(), refine_seconds));
+    matched
+}
+
+/// What one tile of [`match_views_in_bands`] found, over its window.
+struct TileResult {
+    window: (Range<usize>, Range<usize>),
+    band: DisparityRange,
+    disparity: Vec<f32>,
+    whole: Vec<[f32; 5]>,
+    ambiguity: Ambiguity,
+}
+
+/// The window `columns` × `rows` of a one-channel image.
+fn crop(image: &GreyImage, columns: &Range<usize>, rows: &Range<usize>) -> GreyImage {
+    let w = image.width;
+    GreyImage {
+        channels: 1,
+        width: columns.len(),
+        height: rows.len(),
+        data: rows
+            .clone()
+            .flat_map(|y| {
+                image.data[y * w + columns.start..y * w + columns.end]
+                    .iter()
+                    .copied()
+            })
+            .collect(),
+    }
 }
 
 /// View `i`'s raw map checked against its neighbours', the failures filled
@@ -274,12 +625,18 @@ fn distinct_features(network: &MatchingNetwork, images: &[&GreyImage]) -> Vec<Fe
 /// Every view's compact features: the network's features of its matching images, merged
 /// by a [`FeatureProjection`] fitted on the first view when there are several; pixels a
 /// view did not measure get a zero feature (a neutral cost of 0.5).
-fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<CompactFeatures>> {
+fn view_features(
+    network: &MatchingNetwork,
+    images: &[ViewImage],
+    dims: Option<usize>,
+) -> Result<Vec<CompactFeatures>> {
     // The first view's maps fit the projection and are then merged themselves, not
     // computed again (a ninth of the network's work for three signals).
-    let (projection, mut first_maps) = if matching_images(&images[0]).len() > 1 {
+    let projected =
+        matching_images(&images[0]).len() > 1 || dims.is_some_and(|d| d < network.feature_maps());
+    let (projection, mut first_maps) = if projected {
         let maps = distinct_features(network, &matching_images(&images[0]));
-        let dims = maps[0].channels;
+        let dims = dims.unwrap_or(maps[0].channels);
         let fitted = FeatureProjection::fit(&maps, dims)?;
         tracing::info!(
             "feature projection keeps {:.4} of the energy",
@@ -292,14 +649,24 @@ fn view_features(network: &MatchingNetwork, images: &[ViewImage]) -> Result<Vec<
     images
         .iter()
         .map(|v| -> Result<CompactFeatures> {
-            let map = match (&projection, first_maps.take()) {
-                (Some(p), Some(maps)) => p.merged_maps(maps)?,
-                (Some(p), None) => {
-                    p.merged_maps(distinct_features(network, &matching_images(v)))?
+            let mut compact = match (&projection, first_maps.take()) {
+                (Some(p), Some(maps)) => CompactFeatures::from(p.merged_maps(maps)?),
+                // One image: projected strip by strip, no whole map held.
+                (Some(p), None) if p.images() == 1 && p.channels() == network.feature_maps() => {
+                    let dims = p.dims();
+                    tower_features_mapped(network, matching_images(v)[0], dims, |f, out| {
+                        let mut projected = vec![0f32; out.len()];
+                        p.project_one(f, &mut projected);
+                        for (o, &v) in out.iter_mut().zip(&projected) {
+                            *o = to_bf16(v);
+                        }
+                    })
                 }
-                (None, _) => tower_features(network, matching_images(v)[0]),
+                (Some(p), None) => CompactFeatures::from(
+                    p.merged_maps(distinct_features(network, &matching_images(v)))?,
+                ),
+                (None, _) => CompactFeatures::from(tower_features(network, matching_images(v)[0])),
             };
-            let mut compact = CompactFeatures::from(map);
             if let Some(measured) = &v.measured {
                 let c = compact.channels;
                 for (feature, _) in compact
