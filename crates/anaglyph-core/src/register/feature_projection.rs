@@ -144,15 +144,10 @@ impl FeatureProjection {
         self.dims
     }
 
-    /// Channels of the features the projection was fitted on.
-    pub fn channels(&self) -> usize {
-        self.channels
-    }
-
     /// The unit-length projection of one matching image's features (`pixels × channels`)
     /// into `out` (`pixels × dims`): [`FeatureProjection::merged_maps`] of a projection
     /// fitted on one image, a strip of pixels at a time. The caller checks that the
-    /// projection has one image and the features its channels.
+    /// projection has one image; the features come from the network it was fitted on.
     pub(crate) fn project_one(&self, features: &[f32], out: &mut [f32]) {
         let (c, dims) = (self.channels, self.dims);
         let pixels = (features.len() / c.max(1)).min(out.len() / dims.max(1));

@@ -84,11 +84,11 @@ pub fn multi_baseline_disparities(
     };
     // The coarse level needs room for the tower's receptive field and two disparities.
     if coarse_to_fine_here && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE {
-        return coarse_to_fine(images, geometry, settings, progress);
+        return coarse_to_fine(network, images, geometry, settings, progress);
     }
     let mut timings = Vec::new();
     let clock = Instant::now();
-    let features = view_features(network, images, None)?;
+    let features = view_features(network, images, usize::MAX, None)?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let matched = match_views(images, &costs, settings, &mut timings, progress);
@@ -136,12 +136,12 @@ const UNSURE_FRACTION: f64 = 0.25;
 /// filters as one level. The volumes and SGM cost pixels × the bands instead of pixels ×
 /// the range.
 fn coarse_to_fine(
+    network: &MatchingNetwork,
     images: &[ViewImage],
     geometry: &ArrayGeometry,
     settings: &RegistrationSettings<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
-    let network = fast_network(settings)?;
     let coarse_images: Vec<ViewImage> = images.iter().map(|v| v.downsampled(2, true)).collect();
     let coarse_settings = RegistrationSettings {
         range: settings.range.scaled(0.5),
@@ -157,21 +157,10 @@ fn coarse_to_fine(
         .map(|(name, seconds)| (format!("coarse: {name}"), *seconds))
         .collect();
     let clock = Instant::now();
-    let fine_images: Vec<ViewImage> = images
-        .iter()
-        .map(|v| ViewImage {
-            image: v.image.clone(),
-            matching: v.matching.iter().take(FINE_SIGNALS).cloned().collect(),
-            measured: v.measured.clone(),
-        })
-        .collect();
-    let features = view_features(network, &fine_images, Some(FINE_DIMS))?;
-    drop(fine_images);
+    let features = view_features(network, images, FINE_SIGNALS, Some(FINE_DIMS))?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
-    let guides: Vec<BandGuide> = (0..images.len())
-        .map(|i| BandGuide::of(&coarse.disparities, geometry, i))
-        .collect();
+    let guides = BandGuide::of_views(coarse.disparities, geometry);
     let matched = match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress);
     finish(matched, &costs, settings.range, timings)
 }
@@ -184,16 +173,27 @@ struct BandGuide {
 }
 
 impl BandGuide {
-    fn of(coarse: &[DisparityMap], geometry: &ArrayGeometry, i: usize) -> Self {
-        let confirmed = confirmed_by_neighbours(coarse, geometry, i)
-            .data
-            .iter()
-            .map(|d| d.is_finite())
+    /// Every view's guide from its coarse map (`coarse`, in view order).
+    fn of_views(coarse: Vec<DisparityMap>, geometry: &ArrayGeometry) -> Vec<Self> {
+        let confirmed: Vec<Vec<bool>> = (0..coarse.len())
+            .map(|i| {
+                let checked = confirmed_by_neighbours(&coarse, geometry, i);
+                checked.data.iter().map(|d| d.is_finite()).collect()
+            })
             .collect();
-        BandGuide {
-            map: coarse[i].clone(),
-            confirmed,
-        }
+        coarse
+            .into_iter()
+            .zip(confirmed)
+            .map(|(map, confirmed)| BandGuide { map, confirmed })
+            .collect()
+    }
+
+    /// The coarse pixel under full-resolution pixel (x, y) (the last coarse row or column
+    /// for a remainder the box average dropped). The coarse level is never empty
+    /// ([`MIN_COARSE_SIDE`]).
+    fn coarse_pixel(&self, x: usize, y: usize) -> (usize, usize) {
+        let (cw, ch) = (self.map.width, self.map.height);
+        ((x / 2).min(cw - 1), (y / 2).min(ch - 1))
     }
 
     /// The disparities the fine level searches over the full-resolution window
@@ -205,15 +205,13 @@ impl BandGuide {
         rows: &Range<usize>,
         whole: DisparityRange,
     ) -> DisparityRange {
-        let (cw, ch) = (self.map.width, self.map.height);
-        if cw == 0 || ch == 0 {
-            return whole;
-        }
-        let coarse = |v: usize, n: usize| (v / 2).min(n - 1);
+        let cw = self.map.width;
+        let (x0, y0) = self.coarse_pixel(columns.start, rows.start);
+        let (x1, y1) = self.coarse_pixel(columns.end - 1, rows.end - 1);
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         let (mut unsure, mut total) = (0usize, 0usize);
-        for cy in coarse(rows.start, ch)..=coarse(rows.end - 1, ch) {
-            for cx in coarse(columns.start, cw)..=coarse(columns.end - 1, cw) {
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
                 let i = cy * cw + cx;
                 let d = 2.0 * self.map.data[i];
                 if !d.is_finite() {
@@ -231,9 +229,7 @@ impl BandGuide {
         let max = ((hi + BAND_MARGIN).ceil() as i32 + 1).min(whole.max);
         DisparityRange::new(min, max).unwrap_or(whole)
     }
-}
 
-impl BandGuide {
     /// `volume` (of the window `columns` × `rows`) with a cost added to each disparity
     /// more than [`PULL_FREE`] from the upsampled coarse one: [`PULL`] per pixel, at most
     /// [`PULL_CAP`]. Where the view has no texture its costs are flat and SGM's short
@@ -245,18 +241,15 @@ impl BandGuide {
         columns: &Range<usize>,
         rows: &Range<usize>,
     ) -> CostVolume {
-        let (cw, ch) = (self.map.width, self.map.height);
         let n = volume.count();
         let mut pulled = volume.clone();
-        if cw == 0 || ch == 0 {
-            return pulled;
-        }
         for (t, costs) in pulled.data.chunks_exact_mut(n.max(1)).enumerate() {
             let (x, y) = (
                 columns.start + t % volume.width,
                 rows.start + t / volume.width,
             );
-            let g = 2.0 * self.map.data[(y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1)];
+            let (cx, cy) = self.coarse_pixel(x, y);
+            let g = 2.0 * self.map.data[cy * self.map.width + cx];
             if !g.is_finite() {
                 continue;
             }
@@ -340,14 +333,7 @@ fn match_views(
     timings: &mut Vec<(String, f64)>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> MatchedViews {
-    let (w, h) = (images[0].image.width, images[0].image.height);
     let chain = MatchSettings::for_cost(&settings.cost, settings.range);
-    let flat = GreyImage {
-        channels: 1,
-        width: w,
-        height: h,
-        data: vec![0.0; w * h],
-    };
     let (mut cost_seconds, mut refine_seconds) = (0.0, 0.0);
     let mut matched = MatchedViews {
         raw: Vec::with_capacity(images.len()),
@@ -359,24 +345,10 @@ fn match_views(
         cost_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         matched.ambiguities.push(Ambiguity::of_volume(&volume));
-        let disparity = match &chain.sgm {
-            Some(p) => winner_take_all(&semi_global_matching(
-                &volume,
-                &unit_range(&view.image),
-                &flat,
-                p,
-            )),
-            None => winner_take_all(&volume),
-        };
+        let disparity = winners(&volume, &chain, || unit_range(&view.image));
         let whole = whole_steps(&volume, &disparity);
         drop(volume);
-        let half = costs.half_steps(i, &disparity);
-        matched.raw.push(DisparityMap {
-            width: w,
-            height: h,
-            convention: DisparityConvention::ColumnStep,
-            data: half_step_subpixel((w, h), &whole, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
-        });
+        matched.raw.push(subpixel_map(costs, i, &whole, &disparity));
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
     }
@@ -434,18 +406,8 @@ fn match_views_in_bands(
                 let (wc, wr) = (widen(columns, w), widen(rows, h));
                 let band = guides[i].band(&wc, &wr, settings.range);
                 let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
-                let tile_disparity = match &chain.sgm {
-                    Some(p) => {
-                        let guide = crop(&guide_image, &wc, &wr);
-                        let flat = GreyImage {
-                            data: vec![0.0; guide.data.len()],
-                            ..guide.clone()
-                        };
-                        let guided = guides[i].pulled_towards(&volume, &wc, &wr);
-                        winner_take_all(&semi_global_matching(&guided, &guide, &flat, p))
-                    }
-                    None => winner_take_all(&volume),
-                };
+                let guided = guides[i].pulled_towards(&volume, &wc, &wr);
+                let tile_disparity = winners(&guided, &chain, || crop(&guide_image, &wc, &wr));
                 TileResult {
                     window: (wc, wr),
                     band,
@@ -472,13 +434,7 @@ fn match_views_in_bands(
         }
         band_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let half = costs.half_steps(i, &disparity);
-        matched.raw.push(DisparityMap {
-            width: w,
-            height: h,
-            convention: DisparityConvention::ColumnStep,
-            data: half_step_subpixel((w, h), &whole, &half, &disparity, SUBPIXEL_WINDOW_RADIUS),
-        });
+        matched.raw.push(subpixel_map(costs, i, &whole, &disparity));
         matched.ambiguities.push(ambiguity);
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
@@ -492,6 +448,44 @@ fn match_views_in_bands(
     timings.push(("multi-view cost + SGM in bands".to_string(), band_seconds));
     timings.push(("subpixel".to_string(), refine_seconds));
     matched
+}
+
+/// Winner-take-all over `volume` after SGM where the chain has it, its penalties from the
+/// gradients of `guide()` (the view's image over the volume's window, in [0, 1]).
+fn winners(
+    volume: &CostVolume,
+    chain: &MatchSettings,
+    guide: impl FnOnce() -> GreyImage,
+) -> Vec<f32> {
+    match &chain.sgm {
+        Some(p) => {
+            let guide = guide();
+            let flat = GreyImage {
+                data: vec![0.0; guide.data.len()],
+                ..guide.clone()
+            };
+            winner_take_all(&semi_global_matching(volume, &guide, &flat, p))
+        }
+        None => winner_take_all(volume),
+    }
+}
+
+/// View `i`'s raw subpixel map from its whole disparities and their costs at whole steps
+/// ([`whole_steps`]): the half-step costs and their fit.
+fn subpixel_map(
+    costs: &PointCosts<'_>,
+    i: usize,
+    whole: &[[f32; 5]],
+    disparity: &[f32],
+) -> DisparityMap {
+    let size = costs.size();
+    let half = costs.half_steps(i, disparity);
+    DisparityMap {
+        width: size.0,
+        height: size.1,
+        convention: DisparityConvention::ColumnStep,
+        data: half_step_subpixel(size, whole, &half, disparity, SUBPIXEL_WINDOW_RADIUS),
+    }
 }
 
 /// What one tile of [`match_views_in_bands`] found, over its window.
@@ -594,13 +588,13 @@ fn vote_of_neighbours(
     vote_with_neighbours(regions, map, w, h, &voters)
 }
 
-/// The images a view's features come from: its matching images if it has any, else its
-/// grey image.
-fn matching_images(view: &ViewImage) -> Vec<&GreyImage> {
+/// The images a view's features come from: its first `signals` matching images if it has
+/// any, else its grey image.
+fn matching_images(view: &ViewImage, signals: usize) -> Vec<&GreyImage> {
     if view.matching.is_empty() {
         vec![&view.image]
     } else {
-        view.matching.iter().collect()
+        view.matching.iter().take(signals).collect()
     }
 }
 
@@ -622,14 +616,17 @@ fn distinct_features(network: &MatchingNetwork, images: &[&GreyImage]) -> Vec<Fe
     maps
 }
 
-/// Every view's compact features: the network's features of its matching images, merged
-/// by a [`FeatureProjection`] fitted on the first view when there are several; pixels a
-/// view did not measure get a zero feature (a neutral cost of 0.5).
+/// Every view's compact features: the network's features of its first `signals` matching
+/// images, merged by a [`FeatureProjection`] fitted on the first view when there are
+/// several or `dims` asks for fewer dimensions than the network's; pixels a view did not
+/// measure get a zero feature (a neutral cost of 0.5).
 fn view_features(
     network: &MatchingNetwork,
     images: &[ViewImage],
+    signals: usize,
     dims: Option<usize>,
 ) -> Result<Vec<CompactFeatures>> {
+    let matching_images = |view| matching_images(view, signals);
     // The first view's maps fit the projection and are then merged themselves, not
     // computed again (a ninth of the network's work for three signals).
     let projected =
@@ -652,7 +649,7 @@ fn view_features(
             let mut compact = match (&projection, first_maps.take()) {
                 (Some(p), Some(maps)) => CompactFeatures::from(p.merged_maps(maps)?),
                 // One image: projected strip by strip, no whole map held.
-                (Some(p), None) if p.images() == 1 && p.channels() == network.feature_maps() => {
+                (Some(p), None) if p.images() == 1 => {
                     let dims = p.dims();
                     tower_features_mapped(network, matching_images(v)[0], dims, |f, out| {
                         let mut projected = vec![0f32; out.len()];
