@@ -117,7 +117,7 @@ pub fn run_presets(
     seed: u64,
 ) -> anyhow::Result<(Vec<PresetResult>, Simulation)> {
     let mut file = Rig::paper_rig_file(filters);
-    file.focal_length_px = FOCAL_AT_640 * width as f64 / 640.0;
+    file.focal_length_px = Some(FOCAL_AT_640 * width as f64 / 640.0);
     let rig = Rig::from_file(file, ".".into())?;
     let geometry = ArrayGeometry::of_rig(&rig);
     let network = MatchingNetwork::default_fast()?;

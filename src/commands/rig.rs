@@ -87,9 +87,14 @@ fn show(args: RigShowArgs) -> anyhow::Result<()> {
             rig.disparity_baseline_mm
         ),
     };
+    let focal = f
+        .focal_length_px
+        .map_or("no focal length (reconstruction only)".to_string(), |v| {
+            format!("focal length {v} px")
+        });
     println!(
-        "rig '{}': {layout}, reference {}, focal length {} px",
-        f.name, rig.cameras[rig.reference].name, f.focal_length_px
+        "rig '{}': {layout}, reference {}, {focal}",
+        f.name, rig.cameras[rig.reference].name
     );
     println!(
         "sensor {} ({:?}), illuminant {}",

@@ -12,7 +12,7 @@ use std::path::Path;
 /// column step instead of 8 to 18), under `dir/sim`.
 fn simulate_registered(dir: &Path) {
     let mut rig = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    rig.focal_length_px = 720.0;
+    rig.focal_length_px = Some(720.0);
     rig.calibration_plane_mm = Some(720.0 * 30.0 / 13.0);
     rig.save(&dir.join("plane.toml")).unwrap();
     let o = anaglyph(
@@ -237,7 +237,7 @@ fn an_array_calibrated_to_a_checkerboard_plane_reconstructs_like_its_true_homogr
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let mut rig = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    rig.focal_length_px = 720.0;
+    rig.focal_length_px = Some(720.0);
     rig.save(&d.join("plane.toml")).unwrap();
     std::fs::write(d.join("board.toml"), BOARD_SCENE).unwrap();
     for (scene, out) in [("tabletop", "sim"), ("board.toml", "board")] {

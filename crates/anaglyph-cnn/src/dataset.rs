@@ -182,7 +182,7 @@ fn render_pair(
     seed: u64,
 ) -> anaglyph_core::Result<(RenderedView, RenderedView, Vec<f32>)> {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = camera.focal_length_px;
+    file.focal_length_px = Some(camera.focal_length_px);
     file.sensor = format!("builtin:{}", camera.sensor);
     file.rows = Some(1);
     file.cols = Some(2);

@@ -63,7 +63,7 @@ fn render(exposure: f64) -> (Scene, Simulation) {
 /// [`render`] of another scene.
 fn render_scene(text: &str, exposure: f64) -> (Scene, Simulation) {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 900.0;
+    file.focal_length_px = Some(900.0);
     file.cols = Some(2);
     file.cameras.retain(|c| c.col < Some(2));
     let rig = Rig::from_file(file, ".".into()).unwrap();

@@ -41,7 +41,7 @@ fn tabletop_registered(
     plane_mm: Option<f64>,
 ) -> (Rig, Simulation) {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 450.0;
+    file.focal_length_px = Some(450.0);
     file.calibration_plane_mm = plane_mm;
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let simulation = tabletop_through(&rig, 5, metamers);
@@ -572,7 +572,7 @@ fn monochrome_array_reconstructs_and_refines_with_a_grey_guide() {
         cam.col = Some(i % 3);
     }
     file.sensor = "mono.csv".into();
-    file.focal_length_px = 450.0;
+    file.focal_length_px = Some(450.0);
     file.reconstruction.step_nm = 23.0;
     file.reconstruction.count = 9;
     let path = dir.path().join("mono_rig.toml");
@@ -612,7 +612,7 @@ fn common_signals_register_a_grating_whose_contrast_the_filters_invert() {
     // the deep red gel of r0c0 sees it bright on red, the teal gel of r1c1 bright on blue,
     // so luminance features vote for a half-period shift. The cameras' common signals do not.
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 450.0;
+    file.focal_length_px = Some(450.0);
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let scene_file = SceneFile::from_toml_str(
         r#"
@@ -760,7 +760,7 @@ fn two_camera_and_two_by_two_arrays_register_with_the_default_options() {
         ..ReconstructOptions::default()
     };
     for (name, mut file) in layouts {
-        file.focal_length_px = 450.0;
+        file.focal_length_px = Some(450.0);
         let rig = Rig::from_file(file, ".".into()).unwrap();
         let simulation = tabletop_through(&rig, 3, None);
         let captures = ArrayCaptures::from_simulation(&simulation);
@@ -804,7 +804,7 @@ fn two_camera_and_two_by_two_arrays_register_with_the_default_options() {
 fn a_one_camera_rig_is_refused_naming_the_rig() {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS[..1]);
     (file.rows, file.cols) = (Some(1), Some(1));
-    file.focal_length_px = 450.0;
+    file.focal_length_px = Some(450.0);
     let result = Rig::from_file(file, ".".into()).and_then(|rig| {
         let simulation = tabletop_through(&rig, 3, None);
         let captures = ArrayCaptures::from_simulation(&simulation);

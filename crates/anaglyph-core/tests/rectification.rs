@@ -28,7 +28,7 @@ const JITTER: PoseJitter = PoseJitter {
 
 fn rig() -> Rig {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 450.0; // the paper rig's field of view at 160 px
+    file.focal_length_px = Some(450.0); // the paper rig's field of view at 160 px
     Rig::from_file(file, ".".into()).unwrap()
 }
 

@@ -23,7 +23,7 @@ const HEIGHT: usize = 150;
 /// as 1800 px at 640 px wide).
 fn small_rig() -> Rig {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 1800.0 * WIDTH as f64 / 640.0;
+    file.focal_length_px = Some(1800.0 * WIDTH as f64 / 640.0);
     Rig::from_file(file, ".".into()).unwrap()
 }
 

@@ -154,7 +154,7 @@ fn tabletop_pair_registered(
     plane_mm: Option<f64>,
 ) -> (GreyImage, GreyImage, Vec<f32>) {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = focal_length_px;
+    file.focal_length_px = Some(focal_length_px);
     file.calibration_plane_mm = plane_mm;
     file.rows = Some(1);
     file.cols = Some(2);

@@ -15,7 +15,7 @@ use std::path::Path;
 /// The paper's rig with its field of view at 160×120.
 fn rig() -> Rig {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 450.0;
+    file.focal_length_px = Some(450.0);
     Rig::from_file(file, ".".into()).unwrap()
 }
 

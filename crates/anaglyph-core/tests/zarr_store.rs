@@ -57,7 +57,7 @@ fn read<T: zarrs::array::ElementOwned>(path: &Path, name: &str) -> Vec<T> {
 #[test]
 fn frames_written_to_a_store_read_back_bit_for_bit_and_a_rerun_resumes() {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 180.0;
+    file.focal_length_px = Some(180.0);
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let fields = [frame(&rig, 1), frame(&rig, 2)];
     let dir = tempfile::tempdir().unwrap();
@@ -138,7 +138,7 @@ fn frames_written_to_a_store_read_back_bit_for_bit_and_a_rerun_resumes() {
 #[test]
 fn stores_of_other_runs_files_and_foreign_folders_are_refused() {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-    file.focal_length_px = 180.0;
+    file.focal_length_px = Some(180.0);
     let rig = Rig::from_file(file, ".".into()).unwrap();
     let field = frame(&rig, 1);
     let dir = tempfile::tempdir().unwrap();

@@ -262,7 +262,12 @@ fn reconstruct_frame(
     let captures = rectified.as_ref().map_or(captures, |r| &r.captures);
     settings.check_cancelled("calibration")?;
     let calibrated = calibrate_array(rig, captures, settings, &mut log)?;
-    let greys = captures.grey_images();
+    // The grey captures judge this frame against the previous one and go to the next;
+    // a single frame needs neither.
+    let greys = match previous.is_some() || hand_on {
+        true => captures.grey_images(),
+        false => Vec::new(),
+    };
     let (reuse, correlation) = match previous {
         Some(carry) => carry.judge(&greys),
         None => (None, None),

@@ -172,9 +172,14 @@ fn matching_images(
         .iter()
         .map(|signal| common_signal_images(views, signal))
         .collect();
-    let per_camera = (0..views.len())
-        .map(|k| images.iter().map(|per_view| per_view[k].clone()).collect())
+    let mut per_camera: Vec<Vec<GreyImage>> = (0..views.len())
+        .map(|_| Vec::with_capacity(signals.len()))
         .collect();
+    for per_view in images {
+        for (camera, image) in per_camera.iter_mut().zip(per_view) {
+            camera.push(image);
+        }
+    }
     Ok((per_camera, Some(signals)))
 }
 

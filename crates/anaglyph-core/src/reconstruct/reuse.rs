@@ -382,7 +382,7 @@ mod tests {
         use crate::simulate::{Simulation, SimulationSettings};
         use crate::stereo::{MatchingCost, MatchingNetwork};
         let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
-        file.focal_length_px = 450.0;
+        file.focal_length_px = Some(450.0);
         let rig = Rig::from_file(file, ".".into()).unwrap();
         let scene = Scene::resolve(
             SceneFile::preset("tabletop").unwrap(),

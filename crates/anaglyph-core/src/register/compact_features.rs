@@ -6,9 +6,10 @@
 use crate::stereo::FeatureMap;
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::{
-    __m512, __m512bh, __m512i, _mm512_add_ps, _mm512_castpd_ps, _mm512_castps_pd, _mm512_dpbf16_ps,
-    _mm512_loadu_si512, _mm512_reduce_add_ps, _mm512_setzero_ps, _mm512_shuffle_f32x4,
-    _mm512_unpackhi_pd, _mm512_unpackhi_ps, _mm512_unpacklo_pd, _mm512_unpacklo_ps,
+    __m256i, __m512, __m512bh, __m512i, _mm256_loadu_si256, _mm512_add_ps, _mm512_castpd_ps,
+    _mm512_castps_pd, _mm512_dpbf16_ps, _mm512_loadu_si512, _mm512_maskz_mov_ps,
+    _mm512_reduce_add_ps, _mm512_setzero_ps, _mm512_shuffle_f32x4, _mm512_unpackhi_pd,
+    _mm512_unpackhi_ps, _mm512_unpacklo_pd, _mm512_unpacklo_ps, _mm512_zextsi256_si512,
 };
 
 /// Learned features stored as bfloat16 (the upper half of each f32, rounded to nearest):
@@ -165,15 +166,21 @@ pub(super) fn dot_widened(a: &[f32], b: &[u16]) -> f32 {
 
 /// [`dot`] with `vdpbf16ps`: 32 bfloat16 products per instruction, summed into 16 f32
 /// lanes (the products are exact in f32; only the order of the sums differs from [`dot`]).
-/// The length must be a multiple of 32 ([`DotKernel::for_channels`] checks it).
+/// The length must be a multiple of 16 ([`DotKernel::for_channels`] checks it): a last
+/// half vector is loaded into the low half of a zeroed one.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 #[inline]
 pub(super) fn dot_avx512_bf16(a: &[u16], b: &[u16]) -> f32 {
-    debug_assert!(a.len() == b.len() && a.len().is_multiple_of(32));
+    debug_assert!(a.len() == b.len() && a.len().is_multiple_of(16));
     let mut sums = _mm512_setzero_ps();
-    for (p, q) in a.chunks_exact(32).zip(b.chunks_exact(32)) {
+    let (ca, cb) = (a.chunks_exact(32), b.chunks_exact(32));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (p, q) in ca.zip(cb) {
         sums = _mm512_dpbf16_ps(sums, load_bf16(p), load_bf16(q));
+    }
+    if ra.len() == 16 {
+        sums = _mm512_dpbf16_ps(sums, load_half_bf16(ra), load_half_bf16(rb));
     }
     _mm512_reduce_add_ps(sums)
 }
@@ -193,17 +200,44 @@ fn load_bf16(values: &[u16]) -> __m512bh {
     }
 }
 
+/// 16 bfloat16 in the low half of a vector whose high half is zero.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bf16")]
+#[inline]
+fn load_half_bf16(values: &[u16]) -> __m512bh {
+    let values = &values[..16];
+    // SAFETY: `values` holds 16 u16, the 32 bytes an unaligned load reads; a vector of
+    // 32 bf16 has the layout of 32 u16.
+    unsafe {
+        let low = _mm256_loadu_si256(values.as_ptr().cast::<__m256i>());
+        std::mem::transmute::<__m512i, __m512bh>(_mm512_zextsi256_si512(low))
+    }
+}
+
 /// The dot products of 16 pixels' features `a` with 16 pixels' features `b` (each
 /// `16 × channels`, pixel-major), pixel i's in lane i: per pixel 16 partial sums as in
 /// [`dot_avx512_bf16`], then all 16 reduced together ([`sum_lanes_of_16`]), a third of
-/// the shuffles that one reduction per pixel takes. `channels` must be a multiple of 32.
+/// the shuffles that one reduction per pixel takes. `channels` must be a multiple of 32,
+/// or 16: then each vector holds two pixels' features, and the low and high halves of
+/// its products go to the two pixels' partial sums.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 #[inline]
 pub(super) fn dots16_avx512_bf16(a: &[u16], b: &[u16], channels: usize) -> __m512 {
-    debug_assert!(channels.is_multiple_of(32));
+    debug_assert!(channels.is_multiple_of(32) || channels == 16);
     let (a, b) = (&a[..16 * channels], &b[..16 * channels]);
     let mut partial = [_mm512_setzero_ps(); 16];
+    if channels == 16 {
+        for (pair, (p, q)) in partial
+            .chunks_exact_mut(2)
+            .zip(a.chunks_exact(32).zip(b.chunks_exact(32)))
+        {
+            let products = _mm512_dpbf16_ps(_mm512_setzero_ps(), load_bf16(p), load_bf16(q));
+            pair[0] = _mm512_maskz_mov_ps(0x00FF, products);
+            pair[1] = _mm512_maskz_mov_ps(0xFF00, products);
+        }
+        return sum_lanes_of_16(&partial);
+    }
     for ((sums, p), q) in partial
         .iter_mut()
         .zip(a.chunks_exact(channels))
@@ -256,7 +290,7 @@ pub(super) enum DotKernel {
     Portable,
     /// AVX2 + FMA on f32 lanes.
     Avx2,
-    /// AVX-512 BF16 on the stored bfloat16 (features of a multiple of 32 channels).
+    /// AVX-512 BF16 on the stored bfloat16 (features of 16 or a multiple of 32 channels).
     Avx512Bf16,
 }
 
@@ -265,7 +299,8 @@ impl DotKernel {
     pub(super) fn for_channels(channels: usize) -> Self {
         #[cfg(target_arch = "x86_64")]
         {
-            if channels.is_multiple_of(32) && crate::cpu::has_avx512_bf16() {
+            let fits = channels.is_multiple_of(32) || channels == 16;
+            if fits && crate::cpu::has_avx512_bf16() {
                 return DotKernel::Avx512Bf16;
             }
             if crate::cpu::has_avx2_fma() {
@@ -313,7 +348,12 @@ mod tests {
     /// one's pixel by pixel.
     #[test]
     fn every_build_gives_the_portable_dot_products() {
-        let c = 64;
+        for c in [16, 32, 48, 64] {
+            builds_agree_at(c);
+        }
+    }
+
+    fn builds_agree_at(c: usize) {
         let (a, b) = (random_bf16(16 * c, 1), random_bf16(16 * c, 2));
         let portable: Vec<f32> = (0..16)
             .map(|i| dot(&a[i * c..][..c], &b[i * c..][..c]))
@@ -325,7 +365,8 @@ mod tests {
         }
         #[cfg(target_arch = "x86_64")]
         if DotKernel::for_channels(c) == DotKernel::Avx512Bf16 {
-            // SAFETY: the CPU supports AVX-512F and AVX-512 BF16 (checked just above).
+            // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and `c` is 16 or a
+            // multiple of 32 (checked just above).
             let (single, sixteen) = unsafe {
                 let single: Vec<f32> = (0..16)
                     .map(|i| dot_avx512_bf16(&a[i * c..][..c], &b[i * c..][..c]))
@@ -342,11 +383,11 @@ mod tests {
             for i in 0..16 {
                 assert!(
                     (single[i] - portable[i]).abs() < 1e-5,
-                    "one pixel, pixel {i}"
+                    "one pixel, pixel {i} of {c} channels"
                 );
                 assert!(
                     (sixteen[i] - portable[i]).abs() < 1e-5,
-                    "sixteen, pixel {i}"
+                    "sixteen, pixel {i} of {c} channels"
                 );
             }
         }

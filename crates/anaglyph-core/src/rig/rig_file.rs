@@ -160,7 +160,10 @@ pub struct RigFile {
     /// Spacing of a grid layout.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub baseline_mm: Option<Baseline>,
-    pub focal_length_px: f64,
+    /// Focal length in pixels: what the simulator renders with (None: a rig that only
+    /// reconstructs, whose captures need none; [`RigFile::focal_length`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal_length_px: Option<f64>,
     /// Sensor curve reference (1 channel: monochrome; 3: RGB).
     pub sensor: String,
     /// How sensor curves are resampled (the paper: cubic spline).
@@ -317,6 +320,18 @@ impl RigFile {
         ))
     }
 
+    /// The focal length in pixels, which rendering needs (reconstruction does not); an
+    /// error naming the rig where the file gives none.
+    pub fn focal_length(&self) -> Result<f64> {
+        self.focal_length_px.ok_or_else(|| {
+            Error::rig_layout(
+                format!("rig '{}'", self.name),
+                "no focal_length_px",
+                "focal_length_px = <pixels> to render the array (reconstruction needs none)",
+            )
+        })
+    }
+
     /// Writes the file atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
         let text = self.to_toml_string()?;
@@ -332,12 +347,10 @@ impl RigFile {
                 expected,
             ))
         };
-        if !(self.focal_length_px.is_finite() && self.focal_length_px > 0.0) {
-            return range(
-                "focal length (px)",
-                self.focal_length_px,
-                "positive and finite",
-            );
+        if let Some(focal) = self.focal_length_px {
+            if !(focal.is_finite() && focal > 0.0) {
+                return range("focal length (px)", focal, "positive and finite");
+            }
         }
         if let Some(plane) = self.calibration_plane_mm {
             if !(plane.is_finite() && plane > 0.0) {
@@ -591,7 +604,7 @@ impl Rig {
                 horizontal: 30.0,
                 vertical: 50.0,
             }),
-            focal_length_px: 1800.0,
+            focal_length_px: Some(1800.0),
             sensor: format!("{BUILTIN_PREFIX}canon_eos_5d_mark_ii"),
             sensor_interpolation: Interpolation::CubicSpline,
             illuminant: Some(format!("{BUILTIN_PREFIX}cie_a")),
@@ -665,6 +678,28 @@ mod tests {
             let rig = Rig::from_file(RigFile::from_toml_str(&file, "p").unwrap(), ".".into());
             assert_eq!(rig.is_ok(), accepted, "{plane}: {:?}", rig.err());
         }
+    }
+
+    /// A rig that only reconstructs needs no focal length; rendering it asks for one.
+    #[test]
+    fn the_focal_length_is_only_needed_to_render() {
+        let text = "name = 'arr'\nsensor = 'builtin:panchromatic'\n\
+                    [[camera]]\nposition_mm = [0, 0]\n\
+                    [[camera]]\nposition_mm = [40, 0]\n";
+        let file = RigFile::from_toml_str(text, "arr.toml").unwrap();
+        assert_eq!(file.focal_length_px, None);
+        let err = file.focal_length().unwrap_err().to_string();
+        assert!(
+            err.contains("rig 'arr'") && err.contains("focal_length_px"),
+            "{err}"
+        );
+        assert!(Rig::from_file(file, ".".into()).is_ok());
+        let given = format!("focal_length_px = 900.0\n{text}");
+        let file = RigFile::from_toml_str(&given, "arr.toml").unwrap();
+        assert_eq!(file.focal_length().unwrap(), 900.0);
+        let broken = format!("focal_length_px = -1.0\n{text}");
+        let file = RigFile::from_toml_str(&broken, "arr.toml").unwrap();
+        assert!(Rig::from_file(file, ".".into()).is_err());
     }
 
     #[test]

@@ -134,7 +134,7 @@ pub fn render_view(
 ) -> Result<RenderedView> {
     let (w, h) = (settings.width, settings.height);
     let cam = &rig.cameras[camera_index];
-    let (focal, unit) = (rig.file.focal_length_px, rig.disparity_baseline_mm);
+    let (focal, unit) = (rig.file.focal_length()?, rig.disparity_baseline_mm);
     let mut camera = PinholeCamera::at_position(cam.position_mm, focal, (w, h));
     // Disparity of the plane the captures are registered to (0: infinity).
     let mut plane_disparity = 0.0;
@@ -509,6 +509,7 @@ impl Simulation {
         )?;
         let render_c = SensingMatrix::from_responses(&responses, knots, OutOfBand::Extend)?;
         let render_c = embed_in_upsampling_grid(render_c)?;
+        rig.file.focal_length()?;
         if !(0.0..=MAX_VIGNETTING).contains(&settings.vignetting) {
             return Err(Error::setting(
                 "simulation vignetting",

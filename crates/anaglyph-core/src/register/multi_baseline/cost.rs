@@ -98,7 +98,7 @@ impl<'a> PointCosts<'a> {
                 #[cfg(target_arch = "x86_64")]
                 DotKernel::Avx512Bf16 => cost_at(&job, &self.neighbours, x, d as f64, |a, b| {
                     // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
-                    // features have a multiple of 32 channels (`for_channels`).
+                    // features have 16 or a multiple of 32 channels (`for_channels`).
                     unsafe { dot_avx512_bf16(a, b) }
                 }),
                 _ => cost_at(&job, &self.neighbours, x, d as f64, dot),
@@ -227,7 +227,7 @@ fn cost_volume_with(
                             widened_row.get(i * ww * c..(i + 1) * ww * c).unwrap_or(&[]);
                         match kernel {
                             // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the
-                            // features have a multiple of 32 channels (`for_channels`).
+                            // features have 16 or a multiple of 32 channels (`for_channels`).
                             #[cfg(target_arch = "x86_64")]
                             DotKernel::Avx512Bf16 => unsafe {
                                 accumulate_avx512_bf16(&job, &members, d, sums, counts)
@@ -590,7 +590,7 @@ fn neighbour_products(kernel: DotKernel, features: &[CompactFeatures]) -> Vec<Ne
             #[cfg(target_arch = "x86_64")]
             DotKernel::Avx512Bf16 => NeighbourProducts::of(view, |a, b| {
                 // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features
-                // have a multiple of 32 channels (checked by `for_channels`).
+                // have 16 or a multiple of 32 channels (checked by `for_channels`).
                 unsafe { dot_avx512_bf16(a, b) }
             }),
             _ => NeighbourProducts::of(view, dot),
@@ -621,8 +621,8 @@ fn half_step_costs_with(
         };
         let disparity = &disparity[y * w..(y + 1) * w];
         match kernel {
-            // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features have a
-            // multiple of 32 channels (checked by `for_channels`).
+            // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features have
+            // 16 or a multiple of 32 channels (checked by `for_channels`).
             #[cfg(target_arch = "x86_64")]
             DotKernel::Avx512Bf16 => unsafe {
                 half_step_row_avx512_bf16(&job, neighbours, disparity, row)
@@ -671,7 +671,7 @@ unsafe fn half_step_row_avx2(
     half_step_row(job, neighbours, disparity, row, dot)
 }
 
-/// [`half_step_row`] with [`dot_avx512_bf16`] (features of a multiple of 32 channels).
+/// [`half_step_row`] with [`dot_avx512_bf16`] (features of 16 or a multiple of 32 channels).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 fn half_step_row_avx512_bf16(
@@ -874,10 +874,17 @@ mod tests {
     }
 
     /// Every build of the dot products this CPU runs gives the portable build's costs, on
-    /// 64-channel features over a 2×4 array with fractional row shifts.
+    /// features of 16 and 64 channels (the fine and the coarse level's) over a 2×4 array
+    /// with fractional row shifts.
     #[test]
     fn every_dot_product_build_gives_the_same_costs() {
-        let (w, h, c) = (40usize, 12usize, 64usize);
+        for c in [16, 64] {
+            builds_give_the_same_costs(c);
+        }
+    }
+
+    fn builds_give_the_same_costs(c: usize) {
+        let (w, h) = (40usize, 12usize);
         let range = DisparityRange::new(-3, 3).unwrap();
         let geometry = ArrayGeometry::grid(2, 4, 5.0 / 3.0);
         let mut state = 777u64;
@@ -954,7 +961,10 @@ mod tests {
                 .zip(&portable.data)
                 .map(|(a, b)| (a - b).abs())
                 .fold(0f32, f32::max);
-            assert!(worst < 1e-5, "{kernel:?}: volume off by {worst}");
+            assert!(
+                worst < 1e-5,
+                "{kernel:?}, {c} channels: volume off by {worst}"
+            );
             let half = half_step_costs_with(
                 kernel,
                 &features,
@@ -970,7 +980,10 @@ mod tests {
                 .filter(|(a, b)| a.is_finite() || b.is_finite())
                 .map(|(a, b)| (a - b).abs())
                 .fold(0f32, f32::max);
-            assert!(worst < 1e-5, "{kernel:?}: half steps off by {worst}");
+            assert!(
+                worst < 1e-5,
+                "{kernel:?}, {c} channels: half steps off by {worst}"
+            );
         }
     }
 }
