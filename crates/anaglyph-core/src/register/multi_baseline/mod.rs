@@ -284,6 +284,7 @@ fn finish(
     let smoothed: Vec<Vec<f32>> = (0..matched.raw.len())
         .map(|i| checked_filled_smoothed(&matched.raw, costs, i))
         .collect();
+    drop(matched.raw);
     let planes = planes_by_vote(&smoothed, &matched.ambiguities, costs, range);
     timings.push((
         "cross-check, fill, median, planes".to_string(),
@@ -548,13 +549,23 @@ fn planes_by_vote(
         .enumerate()
         .map(|(i, regions)| on_planes(i, regions))
         .collect();
-    regions
+    // Every view's vote first (it reads the neighbours' maps on their own planes), then
+    // each map on its own planes is kept where the vote changed nothing.
+    let voted: Vec<(Vec<RegionPlane>, usize)> = regions
         .into_iter()
         .enumerate()
         .map(|(i, mut regions)| {
             let changed = vote_of_neighbours(&mut regions, &smoothed[i], &on_own_planes, costs, i);
+            (regions, changed)
+        })
+        .collect();
+    voted
+        .into_iter()
+        .zip(on_own_planes)
+        .enumerate()
+        .map(|(i, ((regions, changed), own))| {
             let (planar, moved) = if changed == 0 {
-                on_own_planes[i].clone()
+                own
             } else {
                 on_planes(i, &regions)
             };
