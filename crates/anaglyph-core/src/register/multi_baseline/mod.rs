@@ -91,7 +91,7 @@ pub fn multi_baseline_disparities(
     let features = view_features(network, images, usize::MAX, None)?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
-    let matched = match_views(images, &costs, settings, &mut timings, progress);
+    let matched = match_views(images, &costs, settings, &mut timings, progress)?;
     finish(matched, &costs, settings.range, timings)
 }
 
@@ -161,7 +161,7 @@ fn coarse_to_fine(
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let guides = BandGuide::of_views(coarse.disparities, geometry);
-    let matched = match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress);
+    let matched = match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress)?;
     finish(matched, &costs, settings.range, timings)
 }
 
@@ -333,7 +333,7 @@ fn match_views(
     settings: &RegistrationSettings<'_>,
     timings: &mut Vec<(String, f64)>,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> MatchedViews {
+) -> Result<MatchedViews> {
     let chain = MatchSettings::for_cost(&settings.cost, settings.range);
     let (mut cost_seconds, mut refine_seconds) = (0.0, 0.0);
     let mut matched = MatchedViews {
@@ -346,7 +346,7 @@ fn match_views(
         cost_seconds += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         matched.ambiguities.push(Ambiguity::of_volume(&volume));
-        let disparity = winners(&volume, &chain, || unit_range(&view.image));
+        let disparity = winners(&volume, &chain, || Ok(unit_range(&view.image)))?;
         let whole = whole_steps(&volume, &disparity);
         drop(volume);
         matched.raw.push(subpixel_map(costs, i, &whole, &disparity));
@@ -355,7 +355,7 @@ fn match_views(
     }
     timings.push(("multi-view cost".to_string(), cost_seconds));
     timings.push(("SGM + subpixel".to_string(), refine_seconds));
-    matched
+    Ok(matched)
 }
 
 /// [`match_views`] at the fine level of [`coarse_to_fine`]: each view tile by tile, each
@@ -368,7 +368,7 @@ fn match_views_in_bands(
     guides: &[BandGuide],
     timings: &mut Vec<(String, f64)>,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> MatchedViews {
+) -> Result<MatchedViews> {
     let (w, h) = costs.size();
     let chain = MatchSettings::for_cost(&settings.cost, settings.range);
     let tiles: Vec<(Range<usize>, Range<usize>)> = (0..h.div_ceil(TILE))
@@ -403,21 +403,22 @@ fn match_views_in_bands(
         };
         let results: Vec<TileResult> = tiles
             .par_iter()
-            .map(|(columns, rows)| {
+            .map(|(columns, rows)| -> Result<TileResult> {
                 let (wc, wr) = (widen(columns, w), widen(rows, h));
                 let band = guides[i].band(&wc, &wr, settings.range);
                 let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
                 let guided = guides[i].pulled_towards(&volume, &wc, &wr);
-                let tile_disparity = winners(&guided, &chain, || crop(&guide_image, &wc, &wr));
-                TileResult {
+                let tile_disparity =
+                    winners(&guided, &chain, || guide_image.crop(wc.clone(), wr.clone()))?;
+                Ok(TileResult {
                     window: (wc, wr),
                     band,
                     whole: whole_steps(&volume, &tile_disparity),
                     ambiguity: Ambiguity::of_volume(&volume),
                     disparity: tile_disparity,
-                }
+                })
             })
-            .collect();
+            .collect::<Result<_>>()?;
         for ((columns, rows), tile) in tiles.iter().zip(results) {
             let (wc, wr) = &tile.window;
             let tw = wc.len();
@@ -448,7 +449,7 @@ fn match_views_in_bands(
     );
     timings.push(("multi-view cost + SGM in bands".to_string(), band_seconds));
     timings.push(("subpixel".to_string(), refine_seconds));
-    matched
+    Ok(matched)
 }
 
 /// Winner-take-all over `volume` after SGM where the chain has it, its penalties from the
@@ -456,19 +457,16 @@ fn match_views_in_bands(
 fn winners(
     volume: &CostVolume,
     chain: &MatchSettings,
-    guide: impl FnOnce() -> GreyImage,
-) -> Vec<f32> {
-    match &chain.sgm {
+    guide: impl FnOnce() -> Result<GreyImage>,
+) -> Result<Vec<f32>> {
+    Ok(match &chain.sgm {
         Some(p) => {
-            let guide = guide();
-            let flat = GreyImage {
-                data: vec![0.0; guide.data.len()],
-                ..guide.clone()
-            };
+            let guide = guide()?;
+            let flat = GreyImage::filled(guide.width, guide.height, 1, 0.0);
             winner_take_all(&semi_global_matching(volume, &guide, &flat, p))
         }
         None => winner_take_all(volume),
-    }
+    })
 }
 
 /// View `i`'s raw subpixel map from its whole disparities and their costs at whole steps
@@ -496,24 +494,6 @@ struct TileResult {
     disparity: Vec<f32>,
     whole: Vec<[f32; 5]>,
     ambiguity: Ambiguity,
-}
-
-/// The window `columns` × `rows` of a one-channel image.
-fn crop(image: &GreyImage, columns: &Range<usize>, rows: &Range<usize>) -> GreyImage {
-    let w = image.width;
-    GreyImage {
-        channels: 1,
-        width: columns.len(),
-        height: rows.len(),
-        data: rows
-            .clone()
-            .flat_map(|y| {
-                image.data[y * w + columns.start..y * w + columns.end]
-                    .iter()
-                    .copied()
-            })
-            .collect(),
-    }
 }
 
 /// View `i`'s raw map checked against its neighbours', the failures filled
