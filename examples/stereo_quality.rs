@@ -8,7 +8,9 @@
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
 //! fewer). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
-//! network; `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
+//! network; `ANAGLYPH_FAST_MODEL=M.safetensors` replaces the embedded fast network with
+//! another fast one (to compare weights on the same pairs);
+//! `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
 //! is every heterogeneous pair with its right image's contrast inverted, a fourth the same
 //! pairs with only the right image's lower half inverted. The refined chain runs with
 //! `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same` turns it
@@ -164,7 +166,10 @@ fn main() -> anyhow::Result<()> {
              {max_disp} disparities"
         );
     }
-    let fast = MatchingNetwork::default_fast()?;
+    let fast = match std::env::var("ANAGLYPH_FAST_MODEL") {
+        Ok(path) => MatchingNetwork::load(std::path::Path::new(&path))?,
+        Err(_) => MatchingNetwork::default_fast()?,
+    };
     let accurate = std::env::var("ANAGLYPH_ACCURATE_MODEL")
         .ok()
         .map(|p| MatchingNetwork::load(std::path::Path::new(&p)))

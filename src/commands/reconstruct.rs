@@ -1,15 +1,15 @@
 //! `anaglyph reconstruct`: a rig's captures to a multispectral light field in the fixed
-//! output layout of `anaglyph_core::reconstruct::write_light_field`, with a progress bar
-//! per stage.
+//! output layout of `anaglyph_core::reconstruct::write_light_field`, each view written as
+//! soon as it is done, with a progress bar per stage.
 
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
 use crate::cli::{ReconstructArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore};
 use anaglyph_core::reconstruct::{
-    reconstruct, reconstruct_next, write_light_field, ArrayCaptures, Disparities, FrameCarry,
-    FrameFiles, FrameSequence, LightField, OutputOptions, PipelineSettings, ReconstructOptions,
-    ReuseReport, SolveTuning, Stage,
+    reconstruct_next, reconstruct_streaming, ArrayCaptures, Disparities, FrameCarry, FrameFiles,
+    FrameSequence, LightField, LightFieldWriter, OutputOptions, PipelineSettings,
+    ReconstructOptions, ReuseReport, SolveTuning, Stage,
 };
 use anaglyph_core::rig::Rig;
 use anyhow::Context;
@@ -107,13 +107,21 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<()> {
         ..options
     };
     let bar = stage_bar();
-    let field = reconstruct(&rig, &captures, &settings, &|stage, done, total| {
-        bar.set_message(stage.name());
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    })?;
+    // Each view is written as soon as it is done, and its images dropped.
+    let mut writer = LightFieldWriter::new(&folder, &rig, &options)?;
+    let field = reconstruct_streaming(
+        &rig,
+        &captures,
+        &settings,
+        &|stage, done, total| {
+            bar.set_message(stage.name());
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+        &mut |layout, view| writer.view(layout, view),
+    )?;
     bar.finish_and_clear();
-    let count = write_light_field(&folder, &rig, &field, &options)?;
+    let count = writer.finish(&field)?;
     let out = folder.commit()?;
     print_summary(&field);
     println!(

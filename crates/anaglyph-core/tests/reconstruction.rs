@@ -9,8 +9,10 @@
 use anaglyph_core::builtin;
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{bad_pixel_share, score_cube, seen_by_all_views};
+use anaglyph_core::io::{OutputFolder, Replace};
 use anaglyph_core::reconstruct::{
-    reconstruct, ArrayCaptures, Disparities, DisparitySearch, LightField, PipelineSettings,
+    reconstruct, reconstruct_streaming, write_light_field, ArrayCaptures, Disparities,
+    DisparitySearch, LightField, LightFieldWriter, OutputOptions, PipelineSettings, Products,
     ReconstructOptions,
 };
 use anaglyph_core::refine::GuidedRefinement;
@@ -878,4 +880,65 @@ fn coarse_to_fine_registration_keeps_every_view_close_to_the_truth() {
     // (0.23 to 1.46 % per view), coarse to fine 0.52 % (0.02 to 1.27 %).
     assert!(scores[1].0 < 1.6, "{scores:?}");
     assert!(scores[1].1.iter().all(|&b| b < 3.0), "{scores:?}");
+}
+
+/// Writing each view as soon as it is done (what `reconstruct` on the command line does)
+/// writes the same files as writing the whole field at the end, byte for byte, and leaves
+/// no view holding its images.
+#[test]
+fn a_run_written_view_by_view_equals_the_field_written_at_the_end() {
+    let (rig, simulation) = tabletop();
+    let captures = ArrayCaptures::from_simulation(&simulation);
+    let truth: Vec<Vec<f32>> = simulation
+        .views
+        .iter()
+        .map(|v| v.disparity.clone())
+        .collect();
+    let mut pipeline = settings(
+        RegistrationMode::Pairwise,
+        MatchingCost::Census,
+        Some(given(&simulation, truth)),
+    );
+    pipeline.views = Some(vec!["r0c1".into(), "r1c2".into()]);
+    pipeline.keep_registered = true;
+    let options = OutputOptions {
+        products: Products::Both,
+        probes: vec![(10, 20), (80, 60)],
+        ..OutputOptions::default()
+    };
+    let root = tempfile::tempdir().unwrap();
+    let at_end = OutputFolder::begin(&root.path().join("at_end"), Replace::OwnOutput, &[]).unwrap();
+    let field = reconstruct(&rig, &captures, &pipeline, &|_, _, _| {}).unwrap();
+    write_light_field(&at_end, &rig, &field, &options).unwrap();
+    let streamed =
+        OutputFolder::begin(&root.path().join("streamed"), Replace::OwnOutput, &[]).unwrap();
+    let mut writer = LightFieldWriter::new(&streamed, &rig, &options).unwrap();
+    let mut seen = Vec::new();
+    let streamed_field = reconstruct_streaming(
+        &rig,
+        &captures,
+        &pipeline,
+        &|_, _, _| {},
+        &mut |layout, view| {
+            seen.push((view.name.clone(), layout.clone()));
+            writer.view(layout, view)
+        },
+    )
+    .unwrap();
+    writer.finish(&streamed_field).unwrap();
+    assert_eq!(
+        seen.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),
+        ["r0c1", "r1c2"]
+    );
+    assert!(seen.iter().all(|(_, layout)| *layout == field.layout()));
+    for view in &streamed_field.views {
+        assert!(
+            view.registered.is_none() && view.reflectance.is_none(),
+            "{}",
+            view.name
+        );
+    }
+    let (a, b) = (at_end.inventory().unwrap(), streamed.inventory().unwrap());
+    assert_eq!(a.len(), 2 * (2 + 2 + 2 + 1 + 3), "{a:?}");
+    assert_eq!(a, b);
 }

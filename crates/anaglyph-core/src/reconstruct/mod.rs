@@ -52,7 +52,7 @@ pub use inputs::{
     UNEVEN_WHITE_WARNING,
 };
 pub use options::{ReconstructOptions, SolveTuning};
-pub use output::{write_light_field, OutputOptions, Products};
+pub use output::{write_light_field, LightFieldWriter, OutputOptions, Products};
 pub use preview::{pseudo_colour, srgb_preview, RgbPreview};
 pub use probe_plot::{plot_probe, plot_series, Probe};
 pub use reuse::{block_correlation, FrameCarry, ReuseReport};
@@ -107,6 +107,24 @@ impl Stage {
 /// `progress(stage, done, total)`, called as work finishes.
 pub type Progress<'a> = dyn Fn(Stage, usize, usize) + Sync + 'a;
 
+/// What a view's products need to know of the whole field, known before the first view is
+/// done: the size, the bands and the channels of a registered stack.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldLayout {
+    pub width: usize,
+    pub height: usize,
+    /// Band centres, nm (empty: a registration-only run).
+    pub bands: Vec<f64>,
+    /// The camera channel of each channel of a registered stack, e.g. `r0c1:R`.
+    pub channel_labels: Vec<String>,
+}
+
+/// `sink(layout, view)`, called with each view as soon as it is done
+/// ([`reconstruct_streaming`]). A sink that writes the view's images out may take them
+/// ([`ReconstructedView::reflectance`], [`ReconstructedView::registered`]), so that the
+/// run holds one view's at a time.
+pub type ViewSink<'a> = dyn FnMut(&FieldLayout, &mut ReconstructedView) -> Result<()> + 'a;
+
 /// One reconstructed view.
 #[derive(Debug, Clone)]
 pub struct ReconstructedView {
@@ -138,6 +156,18 @@ pub struct ReconstructedView {
     pub registered: Option<Image<f32>>,
     /// The view's agreement with each row and column neighbour's map, pixel by pixel.
     pub pair_agreements: Vec<PairAgreement>,
+}
+
+impl LightField {
+    /// The field's size, bands and registered-stack channels.
+    pub fn layout(&self) -> FieldLayout {
+        FieldLayout {
+            width: self.width,
+            height: self.height,
+            bands: self.bands.clone(),
+            channel_labels: self.channel_labels.clone(),
+        }
+    }
 }
 
 impl ReconstructedView {
@@ -200,7 +230,24 @@ pub fn reconstruct(
     settings: &PipelineSettings<'_>,
     progress: &Progress<'_>,
 ) -> Result<LightField> {
-    let (mut field, _) = reconstruct_frame(rig, captures, settings, progress, None, false)?;
+    let (mut field, _) = reconstruct_frame(rig, captures, settings, progress, None, false, None)?;
+    field.reuse = None;
+    Ok(field)
+}
+
+/// [`reconstruct`], handing each view to `sink` as soon as it is done. A sink that writes
+/// each view's images and takes them out of the view (as [`LightFieldWriter::view`] does)
+/// keeps one view's images in memory instead of every view's: on arrays of many cameras
+/// at full resolution, the registered stacks are most of a run's memory.
+pub fn reconstruct_streaming(
+    rig: &Rig,
+    captures: &ArrayCaptures,
+    settings: &PipelineSettings<'_>,
+    progress: &Progress<'_>,
+    sink: &mut ViewSink<'_>,
+) -> Result<LightField> {
+    let (mut field, _) =
+        reconstruct_frame(rig, captures, settings, progress, None, false, Some(sink))?;
     field.reuse = None;
     Ok(field)
 }
@@ -217,14 +264,16 @@ pub fn reconstruct_next(
     progress: &Progress<'_>,
     previous: Option<&FrameCarry>,
 ) -> Result<(LightField, FrameCarry)> {
-    let (field, carry) = reconstruct_frame(rig, captures, settings, progress, previous, true)?;
+    let (field, carry) =
+        reconstruct_frame(rig, captures, settings, progress, previous, true, None)?;
     let carry =
         carry.ok_or_else(|| Error::setting("temporal reuse", "nothing handed on", "a carry"))?;
     Ok((field, carry))
 }
 
 /// A frame, starting from `previous`; with `hand_on`, what the next frame takes (a
-/// single frame builds none: it costs a copy of every view's measurements and spectra).
+/// single frame builds none: it costs a copy of every view's measurements and spectra);
+/// each view goes to `sink` when it is done.
 fn reconstruct_frame(
     rig: &Rig,
     captures: &ArrayCaptures,
@@ -232,6 +281,7 @@ fn reconstruct_frame(
     progress: &Progress<'_>,
     previous: Option<&FrameCarry>,
     hand_on: bool,
+    sink: Option<&mut ViewSink<'_>>,
 ) -> Result<(LightField, Option<FrameCarry>)> {
     settings.validate()?;
     if rig.cameras.len() < 2 {
@@ -296,7 +346,22 @@ fn reconstruct_frame(
     pass.changes = changes.as_ref();
     pass.hand_on = hand_on;
     let carried_views = reuse.map(|r| r.carry.views.as_slice());
-    let (views, handed_on) = pass.run_all(&requested, carried_views, &mut log, progress)?;
+    let layout = FieldLayout {
+        width: captures.width,
+        height: captures.height,
+        bands: match settings.spectra {
+            true => rig.reconstruction_shape()?.wavelengths(),
+            false => Vec::new(),
+        },
+        channel_labels: calibrated.sensing.row_labels.clone(),
+    };
+    let (views, handed_on) = pass.run_all(
+        &requested,
+        carried_views,
+        (&layout, sink),
+        &mut log,
+        progress,
+    )?;
     report.priors_carried = views
         .iter()
         .filter(|v| v.solve.scene_prior.is_some_and(|p| p.carried))
@@ -333,14 +398,11 @@ fn reconstruct_frame(
     .chain(solve_stages.iter().copied())
     .collect();
     let field = LightField {
-        width: captures.width,
-        height: captures.height,
-        bands: match settings.spectra {
-            true => rig.reconstruction_shape()?.wavelengths(),
-            false => Vec::new(),
-        },
+        width: layout.width,
+        height: layout.height,
+        bands: layout.bands,
         views,
-        channel_labels: calibrated.sensing.row_labels.clone(),
+        channel_labels: layout.channel_labels,
         calibration: calibrated.calibration,
         rectification: rectified.map(|r| r.plan),
         search_range: registered.search_range,

@@ -21,8 +21,11 @@
 //! calls before its work to find bad probes or a missing truth first.
 
 use super::registered_stack::write_registered_stack;
-use super::{plot_probe, pseudo_colour, srgb_preview, LightField, Probe, ReconstructedView};
+use super::{
+    plot_probe, pseudo_colour, srgb_preview, FieldLayout, LightField, Probe, ReconstructedView,
+};
 
+use crate::image::Image;
 use crate::io::{
     read_envi, read_envi_shape, write_disparity_preview, write_envi, write_pfm, EnviCube,
     OutputFolder,
@@ -149,40 +152,69 @@ impl OutputOptions {
 }
 
 /// Writes `field` into `folder` (the manifest last); returns the number of files. The
-/// caller commits the folder.
+/// caller commits the folder. A run that writes as it goes hands its views to a
+/// [`LightFieldWriter`] instead.
 pub fn write_light_field(
     folder: &OutputFolder,
     rig: &Rig,
     field: &LightField,
     options: &OutputOptions,
 ) -> Result<usize> {
-    let (w, h) = (field.width, field.height);
     let views: Vec<&str> = field.views.iter().map(|v| v.name.as_str()).collect();
-    options.check(w, h, field.bands.len(), &views)?;
-    let dir = folder.path();
-    let cubes = options.products.cubes();
-    let subfolders = [
-        ("views", cubes),
-        ("disparity", true),
-        ("preview", cubes),
-        ("probes", !options.probes.is_empty()),
-        ("registered", options.products.registered()),
-    ];
-    for (sub, _) in subfolders.iter().filter(|(_, wanted)| *wanted) {
-        create_dir(&dir.join(sub))?;
-    }
-    let clock = std::time::Instant::now();
-    // One colour scale for every view's disparity preview, from 0 or the farthest
-    // (most negative) disparity to the nearest.
-    let span = field
-        .views
-        .iter()
-        .flat_map(|v| v.disparity.data.iter())
-        .filter(|d| d.is_finite())
-        .fold([0.0f32, 0.0f32], |[lo, hi], &d| [lo.min(d), hi.max(d)]);
+    options.check(field.width, field.height, field.bands.len(), &views)?;
+    let mut writer = LightFieldWriter::new(folder, rig, options)?;
+    let layout = field.layout();
     for view in &field.views {
+        writer.view(&layout, &mut view.clone())?;
+    }
+    writer.finish(field)
+}
+
+/// Writes a light field view by view as a run makes them ([`super::reconstruct_streaming`]):
+/// [`LightFieldWriter::view`] writes a view's cube, previews, probes and registered stack
+/// and takes those images out of the view; [`LightFieldWriter::finish`] writes what needs
+/// every view (the disparity maps, on one colour scale) and the manifest last. The caller
+/// checks the options before the run ([`OutputOptions::check`]) and commits the folder.
+pub struct LightFieldWriter<'a> {
+    folder: &'a OutputFolder,
+    rig: &'a Rig,
+    options: &'a OutputOptions,
+    /// Seconds spent writing so far.
+    seconds: f64,
+}
+
+impl<'a> LightFieldWriter<'a> {
+    /// Makes the output's subfolders.
+    pub fn new(folder: &'a OutputFolder, rig: &'a Rig, options: &'a OutputOptions) -> Result<Self> {
+        let clock = std::time::Instant::now();
+        let dir = folder.path();
+        let cubes = options.products.cubes();
+        let subfolders = [
+            ("views", cubes),
+            ("disparity", true),
+            ("preview", cubes),
+            ("probes", !options.probes.is_empty()),
+            ("registered", options.products.registered()),
+        ];
+        for (sub, _) in subfolders.iter().filter(|(_, wanted)| *wanted) {
+            create_dir(&dir.join(sub))?;
+        }
+        Ok(LightFieldWriter {
+            folder,
+            rig,
+            options,
+            seconds: clock.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// Writes `view`'s products and takes its reflectance cube and registered stack out of
+    /// it (its disparity map stays for [`LightFieldWriter::finish`]).
+    pub fn view(&mut self, layout: &FieldLayout, view: &mut ReconstructedView) -> Result<()> {
+        let clock = std::time::Instant::now();
+        let dir = self.folder.path();
         let name = view.name.clone();
-        let camera = rig
+        let camera = self
+            .rig
             .cameras
             .iter()
             .find(|c| c.name == view.name)
@@ -191,29 +223,51 @@ pub fn write_light_field(
                 name: name.clone(),
                 available: "the rig's cameras".into(),
             })?;
-        write_disparity(dir, &name, field, view, span)?;
-        if options.products.registered() {
-            let stack = view.registered.as_ref().ok_or(Error::StageDependency {
+        if self.options.products.registered() {
+            let stack = view.registered.take().ok_or(Error::StageDependency {
                 stage: "registered-stack output",
                 needs: "the warped captures",
                 why: "the pipeline ran without keep_registered",
             })?;
-            write_registered_stack(dir, &name, rig, field, stack)?;
+            write_registered_stack(dir, &name, self.rig, layout, stack)?;
         }
-        if !cubes {
-            continue;
+        if self.options.products.cubes() {
+            let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
+            pseudo_colour(view.cube()?, &layout.bands, &camera.sensor)?.save(&pseudo)?;
+            let srgb = dir.join(format!("preview/{name}_srgb.png"));
+            srgb_preview(view.cube()?, &layout.bands)?.save(&srgb)?;
+            if !self.options.probes.is_empty() {
+                write_probes(dir, &name, layout, view, self.options)?;
+            }
+            let cube = view.reflectance.take().ok_or(Error::StageDependency {
+                stage: "reflectance output",
+                needs: "the view's spectral solve",
+                why: "the run registered only (output registered)",
+            })?;
+            write_cube(dir, &name, layout, cube)?;
         }
-        write_cube(dir, &name, field, view)?;
-        let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
-        pseudo_colour(view.cube()?, &field.bands, &camera.sensor)?.save(&pseudo)?;
-        let srgb = dir.join(format!("preview/{name}_srgb.png"));
-        srgb_preview(view.cube()?, &field.bands)?.save(&srgb)?;
-        if !options.probes.is_empty() {
-            write_probes(dir, &name, field, view, options)?;
-        }
+        self.seconds += clock.elapsed().as_secs_f64();
+        Ok(())
     }
-    let manifest = manifest(field, options, Some(clock.elapsed().as_secs_f64()));
-    folder.write_manifest(&manifest)
+
+    /// Writes every view's disparity map and preview (one colour scale for all, from 0 or
+    /// the farthest, most negative, disparity to the nearest), then the manifest; returns
+    /// the number of files.
+    pub fn finish(self, field: &LightField) -> Result<usize> {
+        let clock = std::time::Instant::now();
+        let span = field
+            .views
+            .iter()
+            .flat_map(|v| v.disparity.data.iter())
+            .filter(|d| d.is_finite())
+            .fold([0.0f32, 0.0f32], |[lo, hi], &d| [lo.min(d), hi.max(d)]);
+        for view in &field.views {
+            write_disparity(self.folder.path(), &view.name, field, view, span)?;
+        }
+        let seconds = self.seconds + clock.elapsed().as_secs_f64();
+        let manifest = manifest(field, self.options, Some(seconds));
+        self.folder.write_manifest(&manifest)
+    }
 }
 
 impl LightField {
@@ -237,13 +291,13 @@ impl LightField {
 }
 
 /// `views/NAME.hdr` and `.img`: the view's reflectance cube.
-fn write_cube(dir: &Path, name: &str, field: &LightField, view: &ReconstructedView) -> Result<()> {
+fn write_cube(dir: &Path, name: &str, layout: &FieldLayout, cube: Image<f32>) -> Result<()> {
     let path = dir.join(format!("views/{name}.hdr"));
     write_envi(
         &path,
         &EnviCube {
-            image: view.cube()?.clone(),
-            wavelengths: Some(field.bands.clone()),
+            image: cube,
+            wavelengths: Some(layout.bands.clone()),
             band_names: None,
         },
         &format!("anaglyph reconstructed reflectance, view {name}"),
@@ -272,11 +326,11 @@ fn write_disparity(
 fn write_probes(
     dir: &Path,
     name: &str,
-    field: &LightField,
+    layout: &FieldLayout,
     view: &ReconstructedView,
     options: &OutputOptions,
 ) -> Result<()> {
-    let (w, h, nb) = (field.width, field.height, field.bands.len());
+    let (w, h, nb) = (layout.width, layout.height, layout.bands.len());
     let truth = match &options.truth {
         Some(t) => Some(read_envi(&t.join(format!("truth/{name}.hdr")))?),
         None => None,
@@ -306,7 +360,7 @@ fn write_probes(
     plot_probe(
         &svg,
         &format!("reflectance, view {name}"),
-        &field.bands,
+        &layout.bands,
         &probes,
     )
 }

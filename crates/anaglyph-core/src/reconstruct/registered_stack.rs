@@ -7,7 +7,7 @@
 //! centres when every filter is a `gaussian:` one) and `registered/NAME_seen.png`, the
 //! number of cameras that see each pixel (black: none, white: all).
 
-use super::LightField;
+use super::FieldLayout;
 use crate::filters::nominal_centre;
 use crate::image::Image;
 use crate::io::{write_envi, EnviCube};
@@ -20,18 +20,17 @@ pub fn write_registered_stack(
     dir: &Path,
     name: &str,
     rig: &Rig,
-    field: &LightField,
-    stack: &Image<f32>,
+    layout: &FieldLayout,
+    image: Image<f32>,
 ) -> Result<()> {
-    let channels = field.channel_labels.len();
-    if (stack.width, stack.height, stack.channels) != (field.width, field.height, channels) {
+    let channels = layout.channel_labels.len();
+    if (image.width, image.height, image.channels) != (layout.width, layout.height, channels) {
         return Err(Error::Shape {
             op: format!("registered stack of view {name}"),
-            got: vec![stack.width, stack.height, stack.channels],
-            expected: vec![field.width, field.height, channels],
+            got: vec![image.width, image.height, image.channels],
+            expected: vec![layout.width, layout.height, channels],
         });
     }
-    let image = stack.clone();
     let firsts: Vec<usize> = (0..rig.cameras.len())
         .map(|m| rig.channel_rows(m).start)
         .collect();
@@ -46,7 +45,7 @@ pub fn write_registered_stack(
         &EnviCube {
             image,
             wavelengths: nominal_centres(rig).filter(|c| c.len() == channels),
-            band_names: Some(field.channel_labels.clone()),
+            band_names: Some(layout.channel_labels.clone()),
         },
         &format!(
             "anaglyph registered stack: every camera warped into view {name}, NaN where unseen"

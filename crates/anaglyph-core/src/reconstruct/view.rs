@@ -7,7 +7,7 @@
 
 use super::view_reuse::{scatter, select, CameraChanges, CarriedView, PixelState, ViewNow};
 use super::{CalibratedArray, PipelineSettings, ReconstructedView, RegisteredArray};
-use super::{Progress, RunLog, Stage};
+use super::{FieldLayout, Progress, RunLog, Stage, ViewSink};
 use super::{LOW_AGREEMENT_WARNING, LOW_VISIBILITY_WARNING};
 use crate::image::Image;
 use crate::register::{gather_measurements, Admission, ArrayGeometry, Gathered};
@@ -65,11 +65,13 @@ impl<'a> ViewPass<'a> {
     /// stage's seconds (summed over views) to `log`.
     ///
     /// `carried` (per camera, rig order) is what the previous frame of a sequence handed
-    /// on ([`CarriedView`]); returned with the views is what each hands to the next.
+    /// on ([`CarriedView`]); returned with the views is what each hands to the next. Each
+    /// view goes to the sink, when there is one, as soon as it is done.
     pub fn run_all(
         &self,
         requested: &[usize],
         carried: Option<&[Option<CarriedView>]>,
+        (layout, mut sink): (&FieldLayout, Option<&mut ViewSink<'_>>),
         log: &mut RunLog,
         progress: &Progress<'_>,
     ) -> Result<(Vec<ReconstructedView>, Vec<CarriedView>)> {
@@ -84,7 +86,10 @@ impl<'a> ViewPass<'a> {
             self.settings
                 .check_cancelled(&format!("view {}", self.rig.cameras[v].name))?;
             let previous = carried.and_then(|c| c.get(v).cloned().flatten());
-            let (view, next) = self.run(v, previous, &mut seconds, &mut log.warnings)?;
+            let (mut view, next) = self.run(v, previous, &mut seconds, &mut log.warnings)?;
+            if let Some(sink) = sink.as_mut() {
+                sink(layout, &mut view)?;
+            }
             views.push(view);
             used.push(next);
             progress(Stage::Views, k + 1, requested.len());
@@ -122,14 +127,18 @@ impl<'a> ViewPass<'a> {
         seconds[0] += start.elapsed().as_secs_f64();
         let image = &self.context.views[v].image;
         let (w, h) = (image.width, image.height);
-        let registered = match self.settings.keep_registered {
-            true => {
-                let rows = measurements.len() / (w * h).max(1);
-                Some(Image::new(w, h, rows, measurements.clone())?)
-            }
-            false => None,
-        };
-        // A registration-only run stops here: no spectral stage.
+        let rows = measurements.len() / (w * h).max(1);
+        // A registration-only run stops here: no spectral stage, and the stack takes the
+        // measurements themselves.
+        let (registered, measurements) =
+            match (self.settings.keep_registered, self.settings.spectra) {
+                (true, true) => (
+                    Some(Image::new(w, h, rows, measurements.clone())?),
+                    measurements,
+                ),
+                (true, false) => (Some(Image::new(w, h, rows, measurements)?), Vec::new()),
+                (false, _) => (None, measurements),
+            };
         let (reflectance, report, next) = match self.settings.spectra {
             true => {
                 let (solve, next) =
