@@ -15,6 +15,9 @@
 //! instead of the default mixture; `+0.5^0`: no propagation rounds).
 //! `ANAGLYPH_DISPUTED=T` sets the disputed measurements' residual tolerance (default
 //! `DISPUTED_TOLERANCE`; 0: the cameras' maps decide visibility alone).
+//! `ANAGLYPH_FAST_MODEL=M.safetensors` registers with another fast network than the
+//! embedded one (`models/mccnn-fast-4k.safetensors` reproduces the figures measured with
+//! the previous default).
 
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
 use anaglyph_core::evaluation::{score_cube, seen_by_all_views};
@@ -72,7 +75,10 @@ fn main() -> anyhow::Result<()> {
     };
     let rig = Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into())?;
     let geometry = ArrayGeometry::of_rig(&rig);
-    let network = MatchingNetwork::default_fast()?;
+    let network = match std::env::var("ANAGLYPH_FAST_MODEL") {
+        Ok(path) => MatchingNetwork::load(std::path::Path::new(&path))?,
+        Err(_) => MatchingNetwork::default_fast()?,
+    };
     println!("| scene | registration | refinement | r0c0 PSNR | r0c0 SSIM | r0c0 seen-by-all PSNR | all views PSNR | all views SSIM | seconds |");
     println!("|---|---|---|---|---|---|---|---|---|");
     for preset in &presets {

@@ -12,7 +12,8 @@ use safetensors::{Dtype, SafeTensors};
 
 /// The default fast network, trained on simulated cross-spectral pairs (see
 /// `models/README.md` for the command that reproduces it).
-pub const DEFAULT_FAST_WEIGHTS: &[u8] = include_bytes!("../../../../models/mccnn-fast.safetensors");
+pub const DEFAULT_FAST_WEIGHTS: &[u8] =
+    include_bytes!("../../../../models/mccnn-fast-12k.safetensors");
 
 /// Side of every convolution kernel.
 pub const KERNEL: usize = 3;
