@@ -7,7 +7,8 @@
 //! `cargo run --release --example stereo_quality -- [SCENES] [WIDTH] [HEIGHT]` (random
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
-//! fewer). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
+//! fewer); with `ANAGLYPH_PAIRS=narrow`, the same held-out scenes seen by two monochrome
+//! cameras behind narrow-band filters (`PairSettings::narrow_band_share`). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
 //! network; `ANAGLYPH_FAST_MODEL=M.safetensors` replaces the embedded fast network with
 //! another fast one (to compare weights on the same pairs);
 //! `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
@@ -145,10 +146,12 @@ fn main() -> anyhow::Result<()> {
     } else {
         // Every held-out scene twice, once with different gels or channels, once with
         // the same: the two kinds differ only in the filters.
+        let narrow = std::env::var("ANAGLYPH_PAIRS").is_ok_and(|v| v == "narrow");
         let settings = PairSettings {
             width,
             height,
             homogeneous_share: 0.5,
+            narrow_band_share: if narrow { 1.0 } else { 0.0 },
         };
         max_disp = 64 * width / 256;
         for i in 0..count as u64 {
@@ -163,7 +166,12 @@ fn main() -> anyhow::Result<()> {
         }
         println!(
             "{count} held-out random scenes (seeds {TEST_SEED}+) at {width}×{height}, \
-             {max_disp} disparities"
+             {max_disp} disparities{}",
+            if narrow {
+                ", monochrome cameras behind narrow-band filters"
+            } else {
+                ""
+            }
         );
     }
     let fast = match std::env::var("ANAGLYPH_FAST_MODEL") {

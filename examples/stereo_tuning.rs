@@ -35,6 +35,7 @@ fn main() -> anyhow::Result<()> {
         width: 256,
         height: 192,
         homogeneous_share: 0.5,
+        ..PairSettings::default()
     };
     let mut pairs = Vec::new();
     for i in 0..scenes {

@@ -163,6 +163,11 @@ pub struct TrainArgs {
     /// Steps between validations [default: 500].
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub validate_every: Option<u64>,
+    /// Share of the training and validation pairs seen by two monochrome cameras behind
+    /// narrow-band filters (420-700 nm, 10-40 nm wide) instead of gels on colour sensors
+    /// [default: 0].
+    #[arg(long, allow_hyphen_values = true)]
+    pub narrow_band_share: Option<f64>,
     /// Also write the validation curve as CSV here.
     #[arg(long)]
     pub curve: Option<PathBuf>,

@@ -242,6 +242,12 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
         }
         settings.learning_rate = lr;
     }
+    if let Some(share) = args.narrow_band_share {
+        if !(0.0..=1.0).contains(&share) {
+            anyhow::bail!("--narrow-band-share {share}: expected a share in [0, 1]");
+        }
+        settings.pairs.narrow_band_share = share;
+    }
     Ok(settings)
 }
 
@@ -262,6 +268,12 @@ fn recipe_command(settings: &TrainSettings, args: &TrainArgs) -> String {
         settings.validate_every,
         args.out.display()
     );
+    if settings.pairs.narrow_band_share > 0.0 {
+        command.push_str(&format!(
+            " --narrow-band-share {}",
+            settings.pairs.narrow_band_share
+        ));
+    }
     if let Some(curve) = &args.curve {
         command.push_str(&format!(" --curve {}", curve.display()));
     }
@@ -275,7 +287,7 @@ fn recipe_of_checkpoint(
 ) -> anyhow::Result<TrainSettings> {
     let saved = &checkpoint.settings;
     let arch = args.arch.map(architecture);
-    let given: [(&str, Option<String>, String); 7] = [
+    let given: [(&str, Option<String>, String); 8] = [
         (
             "--arch",
             arch.map(|a| format!("{a:?}")),
@@ -310,6 +322,11 @@ fn recipe_of_checkpoint(
             "--learning-rate",
             args.learning_rate.map(|v| v.to_string()),
             saved.learning_rate.to_string(),
+        ),
+        (
+            "--narrow-band-share",
+            args.narrow_band_share.map(|v| v.to_string()),
+            saved.pairs.narrow_band_share.to_string(),
         ),
     ];
     for (option, asked, kept) in given {

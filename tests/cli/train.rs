@@ -77,6 +77,24 @@ fn a_run_in_two_segments_writes_the_weights_of_the_run_made_at_once() {
         d,
     );
     assert_clean_failure(&o, "--steps 5: the run checkpointed in ck has 4");
+    let o = anaglyph(
+        &[
+            "train",
+            "--resume",
+            "ck",
+            "--out",
+            "x",
+            "--narrow-band-share",
+            "0.5",
+        ],
+        d,
+    );
+    assert_clean_failure(
+        &o,
+        "--narrow-band-share 0.5: the run checkpointed in ck has 0",
+    );
+    let o = anaglyph(&["train", "--out", "x", "--narrow-band-share", "1.5"], d);
+    assert_clean_failure(&o, "--narrow-band-share 1.5: expected a share in [0, 1]");
     let o = anaglyph(&["train", "--out", "x", "--stop-at-step", "3"], d);
     assert_clean_failure(&o, "expected --checkpoint DIR with it");
     let o = anaglyph(&["train", "--resume", "once.safetensors", "--out", "x"], d);

@@ -8,6 +8,8 @@
 //! or single colour channels (heterogeneous, and a share homogeneous with the same gel and
 //! channel so that same-filter matching does not suffer), plus channel-swapped copies of
 //! the built-in textures (the paper's KITTI recipe, one channel left, another right).
+//! A recipe may add pairs of monochrome cameras behind narrow-band filters
+//! ([`PairSettings::narrow_band_share`]).
 
 use anaglyph_core::builtin;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
@@ -73,13 +75,19 @@ fn grey_of(capture: &[f32], channels: usize, w: usize, h: usize, channel: Channe
     }
 }
 
-/// Sizes of the simulated pairs.
+/// Sizes and kinds of the simulated pairs.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PairSettings {
     pub width: usize,
     pub height: usize,
     /// Share of pairs with the same gel and channel on both cameras.
     pub homogeneous_share: f64,
+    /// Share of pairs seen by two monochrome cameras behind narrow-band filters
+    /// ([`NARROW_BAND_CENTRES_NM`], [`NARROW_BAND_FWHM_NM`]) instead of gels on colour
+    /// sensors: the research arrays' build. 0 in the recipes before it existed (absent from
+    /// their checkpoints).
+    #[serde(default)]
+    pub narrow_band_share: f64,
 }
 
 impl Default for PairSettings {
@@ -88,8 +96,40 @@ impl Default for PairSettings {
             width: 256,
             height: 192,
             homogeneous_share: 0.25,
+            narrow_band_share: 0.0,
         }
     }
+}
+
+/// Centres (nm) a narrow-band pair's filters are drawn from, uniformly.
+pub const NARROW_BAND_CENTRES_NM: (f64, f64) = (420.0, 700.0);
+/// Full widths at half maximum (nm) of a narrow-band pair's filters, drawn uniformly.
+pub const NARROW_BAND_FWHM_NM: (f64, f64) = (10.0, 40.0);
+/// Least distance (nm) between the centres of a heterogeneous narrow-band pair's filters.
+pub const NARROW_BAND_SEPARATION_NM: f64 = 30.0;
+
+/// The filters of a narrow-band pair from scene seed `seed` (`gaussian:` references; the
+/// same on both cameras for a homogeneous pair). A random stream of its own, so that the
+/// gel pairs of a seed are those of the recipes without narrow-band pairs.
+fn narrow_band_filters(seed: u64, homogeneous: bool) -> [String; 2] {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0000);
+    let (lo, hi) = NARROW_BAND_CENTRES_NM;
+    let draw = |rng: &mut ChaCha8Rng, centre: f64| {
+        let fwhm = rng.random_range(NARROW_BAND_FWHM_NM.0..NARROW_BAND_FWHM_NM.1);
+        format!("gaussian:{centre:.0}:{fwhm:.0}")
+    };
+    let first_centre = rng.random_range(lo..hi);
+    let first = draw(&mut rng, first_centre);
+    if homogeneous {
+        return [first.clone(), first];
+    }
+    let second_centre = loop {
+        let c = rng.random_range(lo..hi);
+        if (c - first_centre).abs() >= NARROW_BAND_SEPARATION_NM {
+            break c;
+        }
+    };
+    [first, draw(&mut rng, second_centre)]
 }
 
 /// One simulated pair from scene seed `seed`: random scene, gels, sensor and channels.
@@ -109,6 +149,12 @@ pub fn simulated_pair_with(
     let gels = builtin::filter_names();
     let drawn = rng.random::<f64>() < settings.homogeneous_share;
     let homogeneous = homogeneous.unwrap_or(drawn);
+    if settings.narrow_band_share > 0.0 {
+        let mut kind = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0001);
+        if kind.random::<f64>() < settings.narrow_band_share {
+            return narrow_band_pair(seed, settings, homogeneous, scene);
+        }
+    }
     let first = gels[rng.random_range(0..gels.len())];
     let second = if homogeneous {
         first
@@ -164,12 +210,52 @@ pub fn simulated_pair_with(
     })
 }
 
-/// Two cameras side by side (the paper rig's 30 mm baseline).
+/// A pair of monochrome cameras behind narrow-band filters ([`narrow_band_filters`]), the
+/// scene, focal length and noise drawn from `seed` as for gel pairs.
+fn narrow_band_pair(
+    seed: u64,
+    settings: &PairSettings,
+    homogeneous: bool,
+    scene: Option<SceneFile>,
+) -> anaglyph_core::Result<StereoPair> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0002);
+    let filters = narrow_band_filters(seed, homogeneous);
+    let (w, h) = (settings.width, settings.height);
+    let camera = RigPair {
+        filters: [filters[0].as_str(), filters[1].as_str()],
+        sensor: builtin::PANCHROMATIC,
+        focal_length_px: 1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4),
+    };
+    let scene = scene.unwrap_or_else(|| random_scene(seed));
+    let (lv, rv, disparity) = render_pair(&camera, scene, w, h, seed)?;
+    Ok(StereoPair {
+        left: normalise_image(&grey_of(&lv.capture, lv.channels, w, h, Channel::Luminance)),
+        right: normalise_image(&grey_of(&rv.capture, rv.channels, w, h, Channel::Luminance)),
+        disparity,
+        kind: if homogeneous {
+            PairKind::Homogeneous
+        } else {
+            PairKind::Heterogeneous
+        },
+        label: format!("{} vs {} (panchromatic)", filters[0], filters[1]),
+    })
+}
+
+/// Two cameras side by side (the paper rig's 30 mm baseline). Filters and sensor are
+/// built-in names, or curve references with a prefix (`gaussian:550:30`).
 #[derive(Debug, Clone, Copy)]
 pub struct RigPair<'a> {
     pub filters: [&'a str; 2],
     pub sensor: &'a str,
     pub focal_length_px: f64,
+}
+
+/// `name` as a rig file's curve reference: built-in unless it has a prefix already.
+fn curve_reference(name: &str) -> String {
+    match name.contains(':') {
+        true => name.to_string(),
+        false => format!("builtin:{name}"),
+    }
 }
 
 /// Renders a scene through two cameras: (left view, right view, left disparity where the
@@ -183,12 +269,12 @@ fn render_pair(
 ) -> anaglyph_core::Result<(RenderedView, RenderedView, Vec<f32>)> {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
     file.focal_length_px = Some(camera.focal_length_px);
-    file.sensor = format!("builtin:{}", camera.sensor);
+    file.sensor = curve_reference(camera.sensor);
     file.rows = Some(1);
     file.cols = Some(2);
     file.cameras.truncate(2);
-    file.cameras[0].filter = Some(format!("builtin:{}", camera.filters[0]));
-    file.cameras[1].filter = Some(format!("builtin:{}", camera.filters[1]));
+    file.cameras[0].filter = Some(curve_reference(camera.filters[0]));
+    file.cameras[1].filter = Some(curve_reference(camera.filters[1]));
     let rig = Rig::from_file(file, ".".into())?;
     let scene = Scene::resolve(scene, Path::new("."))?;
     let sim = Simulation::run(

@@ -1,7 +1,9 @@
 //! The candle model and the plain-Rust inference path agree; a few training steps run,
 //! lower the loss, and write weights the inference path reads.
 
-use anaglyph_cnn::dataset::{sample_triplets, simulated_pair, Augmentation, PairSettings, PATCH};
+use anaglyph_cnn::dataset::{
+    sample_triplets, simulated_pair, Augmentation, PairKind, PairSettings, StereoPair, PATCH,
+};
 use anaglyph_cnn::train::to_inference;
 use anaglyph_cnn::{
     train, train_segment, Architecture, Checkpoint, MatchingNet, Outcome, Segment, TrainSettings,
@@ -110,6 +112,7 @@ fn a_few_training_steps_lower_the_loss_and_save_readable_weights() {
         width: 96,
         height: 72,
         homogeneous_share: 0.3,
+        ..PairSettings::default()
     };
     let mut losses = Vec::new();
     let model = train(&settings, |r| losses.push(r.loss)).unwrap();
@@ -137,6 +140,7 @@ fn small_run(steps: usize) -> TrainSettings {
         width: 96,
         height: 72,
         homogeneous_share: 0.3,
+        ..PairSettings::default()
     };
     settings
 }
@@ -243,6 +247,7 @@ fn triplets_put_the_positive_on_the_true_match() {
             width: 128,
             height: 96,
             homogeneous_share: 1.0,
+            ..PairSettings::default()
         },
     )
     .unwrap();
@@ -277,6 +282,7 @@ fn sampling_from_pairs_without_usable_pixels_is_an_error_not_a_hang() {
             width: 64,
             height: 48,
             homogeneous_share: 0.0,
+            ..PairSettings::default()
         },
     )
     .unwrap();
@@ -290,4 +296,48 @@ fn sampling_from_pairs_without_usable_pixels_is_an_error_not_a_hang() {
     );
     let message = result.expect_err("no usable pixel").to_string();
     assert!(message.contains("0 of 8"), "{message}");
+}
+
+#[test]
+fn narrow_band_pairs_join_a_recipe_without_changing_its_gel_pairs() {
+    let plain = PairSettings {
+        width: 64,
+        height: 48,
+        ..PairSettings::default()
+    };
+    let mixed = PairSettings {
+        narrow_band_share: 0.5,
+        ..plain
+    };
+    let bits = |p: &StereoPair| {
+        (p.left.data.iter().chain(&p.right.data))
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>()
+    };
+    let mut narrow = 0;
+    for seed in 0..16 {
+        let a = simulated_pair(seed, &plain).unwrap();
+        let b = simulated_pair(seed, &mixed).unwrap();
+        assert_eq!(a.kind, b.kind, "seed {seed}");
+        if !b.label.contains("gaussian:") {
+            assert_eq!(bits(&a), bits(&b), "seed {seed}: {} / {}", a.label, b.label);
+            continue;
+        }
+        narrow += 1;
+        assert!(b.label.ends_with("(panchromatic)"), "{}", b.label);
+        let centres: Vec<f64> = b
+            .label
+            .split(" vs ")
+            .map(|f| f.split(':').nth(1).unwrap().parse().unwrap())
+            .collect();
+        match b.kind {
+            PairKind::Homogeneous => assert_eq!(centres[0], centres[1], "{}", b.label),
+            _ => assert!((centres[0] - centres[1]).abs() >= 29.5, "{}", b.label),
+        }
+        assert!(b.disparity.iter().filter(|d| d.is_finite()).count() > 64 * 48 / 2);
+    }
+    assert!(
+        (3..=13).contains(&narrow),
+        "{narrow} of 16 narrow-band pairs"
+    );
 }
