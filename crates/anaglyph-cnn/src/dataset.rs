@@ -149,10 +149,23 @@ pub fn simulated_pair_with(
     let gels = builtin::filter_names();
     let drawn = rng.random::<f64>() < settings.homogeneous_share;
     let homogeneous = homogeneous.unwrap_or(drawn);
+    let (w, h) = (settings.width, settings.height);
+    let scene = scene.unwrap_or_else(|| random_scene(seed));
     if settings.narrow_band_share > 0.0 {
         let mut kind = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0001);
         if kind.random::<f64>() < settings.narrow_band_share {
-            return narrow_band_pair(seed, settings, homogeneous, scene);
+            // Monochrome cameras behind narrow-band filters ([`narrow_band_filters`]), the
+            // focal length from a stream of its own too.
+            let filters = narrow_band_filters(seed, homogeneous);
+            let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0002);
+            let camera = RigPair {
+                filters: [filters[0].as_str(), filters[1].as_str()],
+                sensor: builtin::PANCHROMATIC,
+                focal_length_px: random_focal_length(w, &mut rng),
+            };
+            let label = format!("{} vs {} (panchromatic)", filters[0], filters[1]);
+            let channels = [Channel::Luminance; 2];
+            return grey_pair(&camera, scene, (w, h), seed, channels, homogeneous, label);
         }
     }
     let first = gels[rng.random_range(0..gels.len())];
@@ -180,64 +193,51 @@ pub fn simulated_pair_with(
     } else {
         pick_channel(&mut rng)
     };
-    let (w, h) = (settings.width, settings.height);
-    let focal_length_px = 1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4);
-    let scene = scene.unwrap_or_else(|| random_scene(seed));
     let camera = RigPair {
         filters: [first, second],
         sensor,
-        focal_length_px,
+        focal_length_px: random_focal_length(w, &mut rng),
     };
-    let (lv, rv, disparity) = render_pair(&camera, scene, w, h, seed)?;
     let name = |c: Channel| match c {
         Channel::Luminance => "Y".to_string(),
         Channel::Colour(c) => ["R", "G", "B"][c].to_string(),
     };
-    Ok(StereoPair {
-        left: normalise_image(&grey_of(&lv.capture, lv.channels, w, h, left_channel)),
-        right: normalise_image(&grey_of(&rv.capture, rv.channels, w, h, right_channel)),
-        disparity,
-        kind: if homogeneous {
-            PairKind::Homogeneous
-        } else {
-            PairKind::Heterogeneous
-        },
-        label: format!(
-            "{first}/{} vs {second}/{} ({sensor})",
-            name(left_channel),
-            name(right_channel)
-        ),
-    })
+    let label = format!(
+        "{first}/{} vs {second}/{} ({sensor})",
+        name(left_channel),
+        name(right_channel)
+    );
+    let channels = [left_channel, right_channel];
+    grey_pair(&camera, scene, (w, h), seed, channels, homogeneous, label)
 }
 
-/// A pair of monochrome cameras behind narrow-band filters ([`narrow_band_filters`]), the
-/// scene, focal length and noise drawn from `seed` as for gel pairs.
-fn narrow_band_pair(
+/// A random pair's focal length: the paper rig's field of view at width `w`, ×0.6 to 1.4.
+fn random_focal_length(w: usize, rng: &mut ChaCha8Rng) -> f64 {
+    1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4)
+}
+
+/// `scene` rendered through `camera` ([`render_pair`]) at `w × h`, each view's `channels`
+/// entry as a normalised grey image.
+fn grey_pair(
+    camera: &RigPair<'_>,
+    scene: SceneFile,
+    (w, h): (usize, usize),
     seed: u64,
-    settings: &PairSettings,
+    channels: [Channel; 2],
     homogeneous: bool,
-    scene: Option<SceneFile>,
+    label: String,
 ) -> anaglyph_core::Result<StereoPair> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0002);
-    let filters = narrow_band_filters(seed, homogeneous);
-    let (w, h) = (settings.width, settings.height);
-    let camera = RigPair {
-        filters: [filters[0].as_str(), filters[1].as_str()],
-        sensor: builtin::PANCHROMATIC,
-        focal_length_px: 1800.0 * w as f64 / 640.0 * rng.random_range(0.6..1.4),
-    };
-    let scene = scene.unwrap_or_else(|| random_scene(seed));
-    let (lv, rv, disparity) = render_pair(&camera, scene, w, h, seed)?;
+    let (lv, rv, disparity) = render_pair(camera, scene, w, h, seed)?;
     Ok(StereoPair {
-        left: normalise_image(&grey_of(&lv.capture, lv.channels, w, h, Channel::Luminance)),
-        right: normalise_image(&grey_of(&rv.capture, rv.channels, w, h, Channel::Luminance)),
+        left: normalise_image(&grey_of(&lv.capture, lv.channels, w, h, channels[0])),
+        right: normalise_image(&grey_of(&rv.capture, rv.channels, w, h, channels[1])),
         disparity,
         kind: if homogeneous {
             PairKind::Homogeneous
         } else {
             PairKind::Heterogeneous
         },
-        label: format!("{} vs {} (panchromatic)", filters[0], filters[1]),
+        label,
     })
 }
 
@@ -327,30 +327,15 @@ pub fn rig_pair(
     height: usize,
     seed: u64,
 ) -> anaglyph_core::Result<StereoPair> {
-    let (lv, rv, disparity) = render_pair(camera, scene, width, height, seed)?;
-    Ok(StereoPair {
-        left: normalise_image(&grey_of(
-            &lv.capture,
-            lv.channels,
-            width,
-            height,
-            Channel::Luminance,
-        )),
-        right: normalise_image(&grey_of(
-            &rv.capture,
-            rv.channels,
-            width,
-            height,
-            Channel::Luminance,
-        )),
-        disparity,
-        kind: if camera.filters[0] == camera.filters[1] {
-            PairKind::Homogeneous
-        } else {
-            PairKind::Heterogeneous
-        },
-        label: format!("{} vs {}", camera.filters[0], camera.filters[1]),
-    })
+    grey_pair(
+        camera,
+        scene,
+        (width, height),
+        seed,
+        [Channel::Luminance; 2],
+        camera.filters[0] == camera.filters[1],
+        format!("{} vs {}", camera.filters[0], camera.filters[1]),
+    )
 }
 
 /// `count` simulated pairs from scene seeds `first_seed..`, rendered in parallel.
