@@ -32,7 +32,7 @@ use anaglyph_core::simulate::{Simulation, SimulationSettings};
 use anaglyph_core::solve::{
     ScenePriorSettings, SolveSettings, DISPUTED_TOLERANCE, INCONSISTENCY_FACTOR,
 };
-use anaglyph_core::stereo::{DisparityRange, MatchingCost, MatchingNetwork};
+use anaglyph_core::stereo::{DisparityRange, MatchMethod, MatchingCost};
 use std::time::Instant;
 
 /// Margin of the search range over the scene's largest true disparity (its nearest
@@ -75,10 +75,10 @@ fn main() -> anyhow::Result<()> {
     };
     let rig = Rig::from_file(Rig::paper_rig_file(&PAPER_RIG_FILTERS), ".".into())?;
     let geometry = ArrayGeometry::of_rig(&rig);
-    let network = match std::env::var("ANAGLYPH_FAST_MODEL") {
-        Ok(path) => MatchingNetwork::load(std::path::Path::new(&path))?,
-        Err(_) => MatchingNetwork::default_fast()?,
-    };
+    let model = std::env::var_os("ANAGLYPH_FAST_MODEL").map(std::path::PathBuf::from);
+    let network = MatchMethod::Mccnn
+        .network(model.as_deref())?
+        .ok_or_else(|| anyhow::anyhow!("mccnn is a learned method"))?;
     println!("| scene | registration | refinement | r0c0 PSNR | r0c0 SSIM | r0c0 seen-by-all PSNR | all views PSNR | all views SSIM | seconds |");
     println!("|---|---|---|---|---|---|---|---|---|");
     for preset in &presets {

@@ -8,11 +8,11 @@
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
 //! fewer); with `ANAGLYPH_PAIRS=narrow`, the same held-out scenes seen by two monochrome
-//! cameras behind narrow-band filters (`PairSettings::narrow_band_share`). `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate
-//! network; `ANAGLYPH_FAST_MODEL=M.safetensors` replaces the embedded fast network with
-//! another fast one (to compare weights on the same pairs);
-//! `ANAGLYPH_COSTS=mccnn,mccnn-accurate` keeps only the named costs. A third group
-//! is every heterogeneous pair with its right image's contrast inverted, a fourth the same
+//! cameras behind narrow-band filters (`PairSettings::narrow_band_share`).
+//! `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate network;
+//! `ANAGLYPH_FAST_MODEL=M.safetensors` replaces the embedded fast network with another
+//! fast one (to compare weights on the same pairs); `ANAGLYPH_COSTS=mccnn,mccnn-accurate`
+//! keeps only the named costs. A third group is every heterogeneous pair with its right image's contrast inverted, a fourth the same
 //! pairs with only the right image's lower half inverted. The refined chain runs with
 //! `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same` turns it
 //! off, `ANAGLYPH_CONTRAST=either` takes either sign per pixel), which also prints how many
@@ -23,7 +23,8 @@ use anaglyph_cnn::dataset::{
 };
 use anaglyph_core::scene::SceneFile;
 use anaglyph_core::stereo::{
-    match_pair, negated, Contrast, DisparityRange, MatchSettings, MatchingCost, MatchingNetwork,
+    match_pair, negated, Contrast, DisparityRange, MatchMethod, MatchSettings, MatchingCost,
+    MatchingNetwork,
 };
 use std::time::Instant;
 
@@ -174,10 +175,10 @@ fn main() -> anyhow::Result<()> {
             }
         );
     }
-    let fast = match std::env::var("ANAGLYPH_FAST_MODEL") {
-        Ok(path) => MatchingNetwork::load(std::path::Path::new(&path))?,
-        Err(_) => MatchingNetwork::default_fast()?,
-    };
+    let model = std::env::var_os("ANAGLYPH_FAST_MODEL").map(std::path::PathBuf::from);
+    let fast = MatchMethod::Mccnn
+        .network(model.as_deref())?
+        .ok_or_else(|| anyhow::anyhow!("mccnn is a learned method"))?;
     let accurate = std::env::var("ANAGLYPH_ACCURATE_MODEL")
         .ok()
         .map(|p| MatchingNetwork::load(std::path::Path::new(&p)))

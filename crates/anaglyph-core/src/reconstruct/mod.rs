@@ -179,6 +179,16 @@ impl ReconstructedView {
             why: "the run registered only (output registered)",
         })
     }
+
+    /// The registered stack; an error in a run without
+    /// [`PipelineSettings::keep_registered`].
+    pub fn registered_stack(&self) -> Result<&Image<f32>> {
+        self.registered.as_ref().ok_or(Error::StageDependency {
+            stage: "registered-stack output",
+            needs: "the warped captures",
+            why: "the pipeline ran without keep_registered",
+        })
+    }
 }
 
 /// The multispectral light field of an array.

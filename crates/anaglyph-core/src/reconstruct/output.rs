@@ -164,8 +164,13 @@ pub fn write_light_field(
     options.check(field.width, field.height, field.bands.len(), &views)?;
     let mut writer = LightFieldWriter::new(folder, rig, options)?;
     let layout = field.layout();
+    let products = options.products;
     for view in &field.views {
-        writer.view(&layout, &mut view.clone())?;
+        let stack = (products.registered())
+            .then(|| view.registered_stack().cloned())
+            .transpose()?;
+        let cube = products.cubes().then(|| view.cube().cloned()).transpose()?;
+        writer.write(&layout, &view.name, stack, cube)?;
     }
     writer.finish(field)
 }
@@ -210,41 +215,51 @@ impl<'a> LightFieldWriter<'a> {
     /// Writes `view`'s products and takes its reflectance cube and registered stack out of
     /// it (its disparity map stays for [`LightFieldWriter::finish`]).
     pub fn view(&mut self, layout: &FieldLayout, view: &mut ReconstructedView) -> Result<()> {
+        let products = self.options.products;
+        if products.registered() {
+            view.registered_stack()?;
+        }
+        if products.cubes() {
+            view.cube()?;
+        }
+        let stack = products.registered().then(|| view.registered.take());
+        let cube = products.cubes().then(|| view.reflectance.take());
+        self.write(layout, &view.name, stack.flatten(), cube.flatten())
+    }
+
+    /// Writes view `name`'s registered stack and its cube with the cube's previews and
+    /// probes, each that is given (the products asked for).
+    fn write(
+        &mut self,
+        layout: &FieldLayout,
+        name: &str,
+        stack: Option<Image<f32>>,
+        cube: Option<Image<f32>>,
+    ) -> Result<()> {
         let clock = std::time::Instant::now();
         let dir = self.folder.path();
-        let name = view.name.clone();
         let camera = self
             .rig
             .cameras
             .iter()
-            .find(|c| c.name == view.name)
+            .find(|c| c.name == name)
             .ok_or_else(|| Error::NotFound {
                 what: "camera of the view".into(),
-                name: name.clone(),
+                name: name.to_string(),
                 available: "the rig's cameras".into(),
             })?;
-        if self.options.products.registered() {
-            let stack = view.registered.take().ok_or(Error::StageDependency {
-                stage: "registered-stack output",
-                needs: "the warped captures",
-                why: "the pipeline ran without keep_registered",
-            })?;
-            write_registered_stack(dir, &name, self.rig, layout, stack)?;
+        if let Some(stack) = stack {
+            write_registered_stack(dir, name, self.rig, layout, stack)?;
         }
-        if self.options.products.cubes() {
+        if let Some(cube) = cube {
             let pseudo = dir.join(format!("preview/{name}_pseudo.png"));
-            pseudo_colour(view.cube()?, &layout.bands, &camera.sensor)?.save(&pseudo)?;
+            pseudo_colour(&cube, &layout.bands, &camera.sensor)?.save(&pseudo)?;
             let srgb = dir.join(format!("preview/{name}_srgb.png"));
-            srgb_preview(view.cube()?, &layout.bands)?.save(&srgb)?;
+            srgb_preview(&cube, &layout.bands)?.save(&srgb)?;
             if !self.options.probes.is_empty() {
-                write_probes(dir, &name, layout, view, self.options)?;
+                write_probes(dir, name, layout, &cube, self.options)?;
             }
-            let cube = view.reflectance.take().ok_or(Error::StageDependency {
-                stage: "reflectance output",
-                needs: "the view's spectral solve",
-                why: "the run registered only (output registered)",
-            })?;
-            write_cube(dir, &name, layout, cube)?;
+            write_cube(dir, name, layout, cube)?;
         }
         self.seconds += clock.elapsed().as_secs_f64();
         Ok(())
@@ -327,7 +342,7 @@ fn write_probes(
     dir: &Path,
     name: &str,
     layout: &FieldLayout,
-    view: &ReconstructedView,
+    cube: &Image<f32>,
     options: &OutputOptions,
 ) -> Result<()> {
     let (w, h, nb) = (layout.width, layout.height, layout.bands.len());
@@ -344,7 +359,6 @@ fn write_probes(
             });
         }
     }
-    let cube = view.cube()?;
     let probes: Vec<Probe> = options
         .probes
         .iter()
