@@ -147,28 +147,155 @@ fn median(values: &mut Vec<f32>) -> f32 {
     }
 }
 
-/// Median over the `(2·radius + 1)²` window of finite values (NaN pixels stay NaN).
+/// Median over the `(2·radius + 1)²` window of finite values (NaN pixels stay NaN). The
+/// 5×5 window of [`median_row_5x5`] where its 25 values are all finite, lanes of
+/// pixels at a time through a selection network; the window sorted elsewhere.
 pub fn median_filter(disparity: &[f32], width: usize, height: usize, radius: usize) -> Vec<f32> {
     let mut out = vec![0f32; width * height];
-    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
-        let mut window = Vec::with_capacity((2 * radius + 1).pow(2));
-        for (x, value) in row.iter_mut().enumerate() {
-            let centre = disparity[y * width + x];
-            if !centre.is_finite() {
-                *value = centre;
+    let window = || {
+        (
+            Vec::with_capacity((2 * radius + 1).pow(2)),
+            vec![false; width],
+        )
+    };
+    out.par_chunks_mut(width)
+        .enumerate()
+        .for_each_init(window, |(window, done), (y, row)| {
+            done.fill(false);
+            if radius == 2 {
+                median_row_5x5(disparity, (width, height), y, row, done);
+            }
+            for (x, value) in row.iter_mut().enumerate() {
+                if done[x] {
+                    continue;
+                }
+                let centre = disparity[y * width + x];
+                if !centre.is_finite() {
+                    *value = centre;
+                    continue;
+                }
+                window.clear();
+                for yy in y.saturating_sub(radius)..(y + radius + 1).min(height) {
+                    window.extend_from_slice(
+                        &disparity[yy * width + x.saturating_sub(radius)
+                            ..yy * width + (x + radius + 1).min(width)],
+                    );
+                }
+                *value = median(window);
+            }
+        });
+    out
+}
+
+/// Values in a 5×5 window, and the wire of a selection network left holding their median.
+const WINDOW_5X5: usize = 25;
+const MEDIAN_WIRE: usize = WINDOW_5X5 / 2;
+/// Wires of the network: the window padded with +∞ to a power of two.
+const WIRES: usize = 32;
+/// Pixels through the network at a time (one vector of f32 lanes per wire).
+const MEDIAN_LANES: usize = 8;
+
+/// Comparators `(i, j)`, `i < j`, each putting the lesser of wires i and j on i: Batcher's
+/// odd–even merge sort of [`WIRES`] wires, without the comparators that can change
+/// nothing (the greater wire still holding its +∞ padding) or nothing of
+/// [`MEDIAN_WIRE`]'s value (their outputs never reach it), so that wire
+/// [`MEDIAN_WIRE`] ends with the 13th smallest of the 25 values on wires 0..25.
+fn median_network() -> &'static [(u8, u8)] {
+    static NETWORK: std::sync::OnceLock<Vec<(u8, u8)>> = std::sync::OnceLock::new();
+    NETWORK.get_or_init(|| {
+        let mut sorting = Vec::new();
+        let mut p = 1;
+        while p < WIRES {
+            let mut k = p;
+            while k >= 1 {
+                for j in (k % p..WIRES - k).step_by(2 * k) {
+                    for i in 0..k.min(WIRES - j - k) {
+                        if (i + j) / (2 * p) == (i + j + k) / (2 * p) {
+                            sorting.push((i + j, i + j + k));
+                        }
+                    }
+                }
+                k /= 2;
+            }
+            p *= 2;
+        }
+        // Forward: a comparator whose greater wire still holds +∞ leaves both wires as
+        // they are; one whose lesser wire does moves the padding to the greater.
+        let mut padding: Vec<bool> = (0..WIRES).map(|i| i >= WINDOW_5X5).collect();
+        let mut effective = Vec::new();
+        for (i, j) in sorting {
+            if padding[j] {
                 continue;
             }
-            window.clear();
-            for yy in y.saturating_sub(radius)..(y + radius + 1).min(height) {
-                window.extend_from_slice(
-                    &disparity[yy * width + x.saturating_sub(radius)
-                        ..yy * width + (x + radius + 1).min(width)],
-                );
+            if padding[i] {
+                (padding[i], padding[j]) = (false, true);
             }
-            *value = median(&mut window);
+            effective.push((i, j));
         }
-    });
-    out
+        // Backward: keep the comparators that feed the median's wire.
+        let mut needed = [false; WIRES];
+        needed[MEDIAN_WIRE] = true;
+        let mut kept = Vec::new();
+        for &(i, j) in effective.iter().rev() {
+            if needed[i] || needed[j] {
+                (needed[i], needed[j]) = (true, true);
+                kept.push((i as u8, j as u8));
+            }
+        }
+        kept.reverse();
+        kept
+    })
+}
+
+/// The median of each lane's 25 finite values on wires 0..25 (their order is lost).
+#[inline(always)]
+fn network_median(wires: &mut [[f32; MEDIAN_LANES]; WIRES]) -> [f32; MEDIAN_LANES] {
+    for &(i, j) in median_network() {
+        let (a, b) = (wires[i as usize], wires[j as usize]);
+        for lane in 0..MEDIAN_LANES {
+            // Finite values: `<` is the order, and compiles to one min and one max.
+            let (lo, hi) = if b[lane] < a[lane] {
+                (b[lane], a[lane])
+            } else {
+                (a[lane], b[lane])
+            };
+            wires[i as usize][lane] = lo;
+            wires[j as usize][lane] = hi;
+        }
+    }
+    wires[MEDIAN_WIRE]
+}
+
+/// Row `y` of the 5×5 median where whole windows are inside the map and finite, lanes
+/// of [`MEDIAN_LANES`] pixels at a time, marking in `done` the pixels it wrote.
+fn median_row_5x5(
+    disparity: &[f32],
+    (width, height): (usize, usize),
+    y: usize,
+    row: &mut [f32],
+    done: &mut [bool],
+) {
+    if y < 2 || y + 2 >= height || width < 4 + MEDIAN_LANES {
+        return;
+    }
+    let mut wires = [[f32::INFINITY; MEDIAN_LANES]; WIRES];
+    for x0 in (2..width - 2 - MEDIAN_LANES + 1).step_by(MEDIAN_LANES) {
+        let mut finite = true;
+        for dy in 0..5 {
+            let source = &disparity[(y + dy - 2) * width + x0 - 2..][..MEDIAN_LANES + 4];
+            finite &= source.iter().all(|v| v.is_finite());
+            for dx in 0..5 {
+                wires[dy * 5 + dx].copy_from_slice(&source[dx..dx + MEDIAN_LANES]);
+            }
+        }
+        if !finite {
+            continue;
+        }
+        wires[WINDOW_5X5..].fill([f32::INFINITY; MEDIAN_LANES]);
+        let medians = network_median(&mut wires);
+        row[x0..x0 + MEDIAN_LANES].copy_from_slice(&medians);
+        done[x0..x0 + MEDIAN_LANES].fill(true);
+    }
 }
 
 /// Bilateral filter settings (MC-CNN: σ 4.64, τ 5 on images normalised to zero mean and
@@ -244,11 +371,45 @@ mod tests {
     }
 
     #[test]
+    fn the_selection_network_gives_the_median_of_25() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let network = median_network();
+        assert!(network.len() < 191, "{} comparators", network.len());
+        for trial in 0..2000 {
+            let mut wires = [[f32::INFINITY; MEDIAN_LANES]; WIRES];
+            let mut want = [0f32; MEDIAN_LANES];
+            for (lane, median) in want.iter_mut().enumerate() {
+                // Few distinct values in some trials: ties.
+                let levels: f32 = if trial % 2 == 0 { 4.0 } else { 1e6 };
+                let mut values: Vec<f32> = (0..WINDOW_5X5)
+                    .map(|_| rng.random_range(0.0..levels).floor())
+                    .collect();
+                for (wire, &v) in wires.iter_mut().zip(&values) {
+                    wire[lane] = v;
+                }
+                values.sort_by(f32::total_cmp);
+                *median = values[MEDIAN_WIRE];
+            }
+            assert_eq!(network_median(&mut wires), want, "trial {trial}");
+        }
+    }
+
+    #[test]
     fn median_filter_equals_a_sorted_window() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let (w, h) = (19, 13);
-        let map = random_map(&mut rng, w * h);
-        let fast = median_filter(&map, w, h, 2);
+        let (w, h) = (37, 13);
+        // With invalid pixels (sorted windows mostly) and without (the network inside).
+        let mut finite = random_map(&mut rng, w * h);
+        finite
+            .iter_mut()
+            .for_each(|v| *v = if v.is_nan() { 3.5 } else { *v });
+        for map in [random_map(&mut rng, w * h), finite] {
+            median_filter_matches_sorted_windows(&map, w, h);
+        }
+    }
+
+    fn median_filter_matches_sorted_windows(map: &[f32], w: usize, h: usize) {
+        let fast = median_filter(map, w, h, 2);
         for y in 0..h {
             for x in 0..w {
                 let centre = map[y * w + x];

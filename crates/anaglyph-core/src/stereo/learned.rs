@@ -100,6 +100,7 @@ pub fn learned_cost_volume_either_sign(
 }
 
 /// Dot product with eight independent accumulators, so that the compiler vectorises it.
+#[cfg(test)]
 #[inline]
 fn dot(a: &[f32], b: &[f32]) -> f32 {
     let mut lanes = [0f32; 8];
@@ -118,7 +119,47 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     lanes.iter().sum::<f32>() + tail
 }
 
-/// `(1 − fl·fr)/2` over L2-normalised features.
+/// `dst = a · bᵀ` for row-major `a` (m × k), `b` (n × k), `dst` (m × n), single-threaded.
+fn matmul_transposed(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
+    assert!(dst.len() >= m * n && a.len() >= m * k && b.len() >= n * k);
+    if m == 0 || n == 0 {
+        return;
+    }
+    // SAFETY: the assertion above keeps every access in bounds: bᵀ's element (i, j) is
+    // b[j·k + i], so its column stride is k and its row stride 1; `dst` does not alias
+    // `a` or `b` (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            a.as_ptr(),
+            1,
+            k as isize,
+            b.as_ptr(),
+            k as isize,
+            1,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
+/// Left pixels per product block of [`cosine_costs`]: the block's right pixels are these
+/// plus the range's width, so wider blocks waste fewer products outside the band.
+const COSINE_BLOCK: usize = 48;
+
+/// `(1 − fl·fr)/2` over L2-normalised features. Per row, each block of left pixels is
+/// multiplied with all the right pixels its disparities reach in one matrix product
+/// (`gemm`), of which the band of matched pairs is kept.
 pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, range: DisparityRange) -> CostVolume {
     let (w, h, c, n) = (fl.width, fl.height, fl.channels, range.count());
     let mut volume = CostVolume::new(w, h, range);
@@ -126,15 +167,32 @@ pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, range: DisparityRange) -> 
         .data
         .par_chunks_mut(w * n)
         .enumerate()
-        .for_each(|(y, row)| {
+        .for_each_init(Vec::new, |products, (y, row)| {
             let (left_row, right_row) = (&fl.data[y * w * c..][..w * c], &fr.data[y * w * c..]);
-            for x in 0..w {
-                let a = &left_row[x * c..][..c];
-                let costs = &mut row[x * n..][..n];
-                for k in matched_indices(x, w, range) {
-                    let b = &right_row[right_column(x, k, range) * c..][..c];
-                    let dot = dot(a, b);
-                    costs[k] = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
+            for x0 in (0..w).step_by(COSINE_BLOCK) {
+                let xs = x0..(x0 + COSINE_BLOCK).min(w);
+                // Right columns x − d for x in the block and d in the range, in the image.
+                let first = (x0 as i64 - range.max as i64).max(0);
+                let last = (xs.end as i64 - 1 - range.min as i64).min(w as i64 - 1);
+                if first > last {
+                    continue;
+                }
+                let (first, columns) = (first as usize, (last - first + 1) as usize);
+                products.resize(xs.len() * columns, 0.0);
+                matmul_transposed(
+                    products,
+                    &left_row[x0 * c..xs.end * c],
+                    &right_row[first * c..][..columns * c],
+                    xs.len(),
+                    columns,
+                    c,
+                );
+                for (x, dots) in xs.zip(products.chunks_exact(columns)) {
+                    let costs = &mut row[x * n..][..n];
+                    for k in matched_indices(x, w, range) {
+                        let dot = dots[right_column(x, k, range) - first];
+                        costs[k] = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
+                    }
                 }
             }
         });
@@ -224,4 +282,65 @@ fn accurate_costs(
         },
     );
     volume
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Unit feature vectors of deterministic noise.
+    fn unit_features(w: usize, h: usize, c: usize, seed: u64) -> FeatureMap {
+        let mut state = seed;
+        let mut data: Vec<f32> = (0..w * h * c)
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect();
+        for v in data.chunks_exact_mut(c) {
+            let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.iter_mut().for_each(|x| *x /= norm);
+        }
+        FeatureMap {
+            width: w,
+            height: h,
+            channels: c,
+            data,
+        }
+    }
+
+    #[test]
+    fn blocked_cosine_costs_equal_the_pairwise_dot_products() {
+        for (w, c, min, max) in [
+            (101, 64, 0, 63),
+            (37, 16, -20, 5),
+            (5, 8, 3, 40),
+            (130, 24, -70, -60),
+        ] {
+            let (fl, fr) = (unit_features(w, 3, c, 1), unit_features(w, 3, c, 2));
+            let range = DisparityRange::new(min, max).expect("range");
+            let volume = cosine_costs(&fl, &fr, range);
+            let n = range.count();
+            for y in 0..3 {
+                for x in 0..w {
+                    for k in 0..n {
+                        let got = volume.data[(y * w + x) * n + k];
+                        let want = if matched_indices(x, w, range).contains(&k) {
+                            let xr = right_column(x, k, range);
+                            let d = dot(fl.pixel(x, y), fr.pixel(xr, y));
+                            (0.5 - 0.5 * d).clamp(0.0, 1.0)
+                        } else {
+                            CostVolume::INVALID
+                        };
+                        assert!(
+                            (got - want).abs() <= 1e-6,
+                            "{w} wide, {c} channels, range {min}:{max}: ({x}, {y}, {k}) {got} against {want}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

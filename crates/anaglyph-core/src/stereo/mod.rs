@@ -7,6 +7,8 @@
 //! semi-global matching, winner-take-all, left–right check with filling, subpixel,
 //! median and bilateral filtering, chained by [`match_pair`].
 
+#[cfg(target_arch = "x86_64")]
+mod amx;
 mod census;
 mod contrast;
 mod cost_volume;

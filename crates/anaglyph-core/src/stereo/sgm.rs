@@ -8,6 +8,7 @@
 use super::DisparityRange;
 use super::{CostVolume, GreyImage};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// SGM settings; [`SgmParameters::MC_CNN_FAST_KITTI`] are MC-CNN fast's published values.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -148,9 +149,26 @@ impl RowPenalties {
     /// The tables for one row, from its right edge flags. The right gradient exists only
     /// where the right pixel is inside the image (the flags are false where its
     /// predecessor along the path is not).
-    fn fill(&mut self, right_edges: &[bool], min_disp: i64, (p1, p2): (f32, f32), d: &[f32; 3]) {
+    fn fill(&mut self, right_edges: &[bool], min_disp: i64, base: (f32, f32), d: &[f32; 3]) {
+        self.fill_columns(right_edges, min_disp, base, d, 0..self.width);
+    }
+
+    /// [`Self::fill`] for the steps into the left pixels `columns` only (the entries
+    /// [`Self::at`] reads for them).
+    fn fill_columns(
+        &mut self,
+        right_edges: &[bool],
+        min_disp: i64,
+        (p1, p2): (f32, f32),
+        d: &[f32; 3],
+        columns: Range<usize>,
+    ) {
+        if columns.is_empty() {
+            return;
+        }
         let w = self.width as i64;
-        for j in 0..self.p1[0].len() {
+        let first = self.width - columns.end;
+        for j in first..self.width - columns.start + self.count - 1 {
             let xr = w - 1 - min_disp - j as i64;
             let right = usize::from((0..w).contains(&xr) && right_edges[xr as usize]);
             for left in 0..2 {
@@ -269,7 +287,15 @@ pub(crate) fn aggregate(
     if !horizontal.is_empty() {
         aggregate_along_rows(volume, left, right, params, &horizontal, &mut sum);
     }
-    for &direction in directions.iter().filter(|d| d.1 != 0) {
+    let vertical: Vec<i64> = directions
+        .iter()
+        .filter(|d| d.0 == 0 && d.1 != 0)
+        .map(|d| d.1)
+        .collect();
+    if !vertical.is_empty() {
+        aggregate_along_columns(volume, left, right, params, &vertical, &mut sum);
+    }
+    for &direction in directions.iter().filter(|d| d.0 != 0 && d.1 != 0) {
         aggregate_across_rows(volume, left, right, params, direction, &mut sum);
     }
     let n = directions.len() as f32;
@@ -329,8 +355,79 @@ fn aggregate_along_rows(
     );
 }
 
-/// One path direction with `dy ≠ 0`, added to `sum`: each row depends on the previous
-/// one along the path, so rows go in order and the pixels of a row in parallel.
+/// Columns per task of [`aggregate_along_columns`].
+const COLUMNS_PER_TASK: usize = 32;
+
+/// The vertical paths (`dys`, each ±1), added to `sum`: columns are independent, so one
+/// task per block of [`COLUMNS_PER_TASK`] columns runs every direction down or up it,
+/// with no synchronisation between rows.
+fn aggregate_along_columns(
+    volume: &CostVolume,
+    left: &GreyImage,
+    right: &GreyImage,
+    params: &SgmParameters,
+    dys: &[i64],
+    sum: &mut [f32],
+) {
+    let (w, h, dm) = (volume.width, volume.height, volume.count());
+    let min_disp = volume.range.min as i64;
+    let divisor = divisors(params);
+    let edges: Vec<(i64, Vec<bool>, Vec<bool>)> = dys
+        .iter()
+        .map(|&dy| {
+            let flags = |image| edge_flags(image, 0, dy, params.gradient_threshold);
+            (dy, flags(left), flags(right))
+        })
+        .collect();
+    // Each block's slice of every row: disjoint borrows, one list per block.
+    let blocks = w.div_ceil(COLUMNS_PER_TASK);
+    let mut columns: Vec<Vec<&mut [f32]>> = (0..blocks).map(|_| Vec::with_capacity(h)).collect();
+    for row in sum.chunks_exact_mut(w * dm) {
+        for (block, part) in columns
+            .iter_mut()
+            .zip(row.chunks_mut(COLUMNS_PER_TASK * dm))
+        {
+            block.push(part);
+        }
+    }
+    columns
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(block, mut rows)| {
+            let x0 = block * COLUMNS_PER_TASK;
+            let xs = x0..(x0 + COLUMNS_PER_TASK).min(w);
+            let mut penalties = RowPenalties::new(w, dm);
+            let mut previous = vec![PathCosts::new(dm); xs.len()];
+            let mut current = previous.clone();
+            for (dy, left_edges, right_edges) in &edges {
+                let base = direction_penalties(params, 0);
+                for i in 0..h {
+                    let y = if *dy > 0 { i } else { h - 1 - i };
+                    let row_edges = &right_edges[y * w..(y + 1) * w];
+                    penalties.fill_columns(row_edges, min_disp, base, &divisor, xs.clone());
+                    let out_row = &mut rows[y];
+                    for (j, (path, out)) in current
+                        .iter_mut()
+                        .zip(out_row.chunks_exact_mut(dm))
+                        .enumerate()
+                    {
+                        let x = x0 + j;
+                        let costs = volume.pixel(x, y);
+                        if i == 0 {
+                            path.start(costs, out);
+                        } else {
+                            let step = penalties.at(x, left_edges[y * w + x]);
+                            path.step(&previous[j], costs, step, out);
+                        }
+                    }
+                    std::mem::swap(&mut previous, &mut current);
+                }
+            }
+        });
+}
+
+/// One diagonal path direction, added to `sum`: each row depends on the previous one
+/// along the path, so rows go in order and the pixels of a row in parallel.
 fn aggregate_across_rows(
     volume: &CostVolume,
     left: &GreyImage,
@@ -441,7 +538,8 @@ mod tests {
     }
 
     fn each_path_matches_a_plain_dynamic_programme_over(range: DisparityRange) {
-        let (w, h, dm) = (9, 7, range.count());
+        // More columns than one task of the vertical paths takes, the last block ragged.
+        let (w, h, dm) = (71, 7, range.count());
         let mut seed = 3;
         let volume = CostVolume {
             width: w,

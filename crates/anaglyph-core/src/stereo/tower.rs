@@ -7,8 +7,9 @@
 //! layer computes the strip's rows plus as many rows either side as the layers after it
 //! still need (the receptive field), so a strip's features equal the whole image's, and
 //! the layers in between live in two small per-thread buffers instead of whole-image
-//! maps. Layers with many inputs use Winograd's transform ([`super::winograd`]); the first
-//! (one input channel) uses im2col and `gemm`.
+//! maps. Layers with many inputs run on AMX tiles in bfloat16 where the CPU has them
+//! ([`super::amx`]), else through Winograd's transform in f32 ([`super::winograd`]); the
+//! first (one input channel) uses im2col and `gemm`.
 
 use super::learned::matmul;
 use super::network::{ConvLayer, MatchingNetwork, KERNEL};
@@ -55,20 +56,50 @@ const BLOCK_PIXELS: usize = 1024;
 /// (below it, the transforms cost more than they save: the first layer sees one channel).
 const WINOGRAD_MIN_INPUTS: usize = 8;
 
-/// One convolution of the tower, ready to run: its kernels in the transform domain where
-/// it goes through Winograd's, and whether a ReLU follows.
+/// How a layer's convolution runs.
+enum Kernels {
+    /// im2col and `gemm` on the layer's own weights.
+    Direct,
+    /// Winograd's transform, with the kernels in its domain.
+    Winograd(Vec<f32>),
+    /// AMX tiles, with the kernels rounded to bfloat16 and packed.
+    #[cfg(target_arch = "x86_64")]
+    Amx(Vec<u16>),
+}
+
+/// One convolution of the tower, ready to run: its kernels as its method wants them, and
+/// whether a ReLU follows.
 pub(crate) struct PreparedLayer<'a> {
     layer: &'a ConvLayer,
-    winograd: Option<Vec<f32>>,
+    kernels: Kernels,
     relu: bool,
 }
 
 impl<'a> PreparedLayer<'a> {
+    /// The layer on AMX tiles where the CPU has them and its channels fit, else through
+    /// Winograd's transform from [`WINOGRAD_MIN_INPUTS`] inputs, else direct.
     pub(crate) fn new(layer: &'a ConvLayer, relu: bool) -> Self {
-        let winograd = (layer.inputs >= WINOGRAD_MIN_INPUTS).then(|| transform_kernels(layer));
+        #[cfg(target_arch = "x86_64")]
+        if super::amx::fits(layer) && crate::cpu::has_amx_bf16() {
+            return PreparedLayer {
+                layer,
+                kernels: Kernels::Amx(super::amx::pack_kernels(layer)),
+                relu,
+            };
+        }
+        Self::without_tiles(layer, relu)
+    }
+
+    /// The layer through Winograd's transform or direct, in f32 on any CPU.
+    pub(crate) fn without_tiles(layer: &'a ConvLayer, relu: bool) -> Self {
+        let kernels = if layer.inputs >= WINOGRAD_MIN_INPUTS {
+            Kernels::Winograd(transform_kernels(layer))
+        } else {
+            Kernels::Direct
+        };
         PreparedLayer {
             layer,
-            winograd,
+            kernels,
             relu,
         }
     }
@@ -83,15 +114,26 @@ impl<'a> PreparedLayer<'a> {
         out: &mut [f32],
         scratch: &mut ConvScratch,
     ) {
-        match &self.winograd {
-            Some(kernels) => winograd_convolve_rows(
+        match &self.kernels {
+            // SAFETY: `new` chose AMX only where the CPU has it and the layer fits.
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Amx(kernels) => unsafe {
+                super::amx::convolve_rows(
+                    input,
+                    (self.layer, kernels, self.relu),
+                    rows,
+                    out,
+                    &mut scratch.amx,
+                )
+            },
+            Kernels::Winograd(kernels) => winograd_convolve_rows(
                 input,
                 (self.layer, kernels, self.relu),
                 rows,
                 out,
                 &mut scratch.winograd,
             ),
-            None => convolve_direct_rows(
+            Kernels::Direct => convolve_direct_rows(
                 input,
                 self.layer,
                 self.relu,
@@ -108,6 +150,8 @@ impl<'a> PreparedLayer<'a> {
 pub(crate) struct ConvScratch {
     columns: Vec<f32>,
     winograd: WinogradScratch,
+    #[cfg(target_arch = "x86_64")]
+    amx: super::amx::AmxScratch,
 }
 
 /// [`PreparedLayer::convolve_rows`] as im2col and one `gemm` per block of pixels.
@@ -375,6 +419,108 @@ mod tests {
                         assert!(
                             worst <= 1e-5 * scale.max(1.0),
                             "{w}x{h} rows {rows:?}, {cin}->{cout}, relu {relu}: worst {worst} (scale {scale})"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn tile_rows_match_the_direct_convolution_of_the_rounded_values() {
+        use crate::stereo::amx;
+        let round = |v: &[f32]| -> Vec<f32> {
+            v.iter()
+                .map(|&x| f32::from_bits((amx::to_bf16(x) as u32) << 16))
+                .collect()
+        };
+        for (w, h, cin, cout) in [(37, 23, 32, 32), (70, 5, 64, 64), (1, 3, 32, 64)] {
+            let input = FeatureMap {
+                width: w,
+                height: h,
+                channels: cin,
+                data: noise(w * h * cin, 5),
+            };
+            let layer = ConvLayer {
+                inputs: cin,
+                outputs: cout,
+                weight: (noise(KERNEL * KERNEL * cin * cout, 6).iter())
+                    .map(|v| v * 0.3)
+                    .collect(),
+                bias: noise(cout, 7),
+            };
+            assert!(amx::fits(&layer));
+            let rounded_input = FeatureMap {
+                data: round(&input.data),
+                ..input.clone()
+            };
+            let rounded_layer = ConvLayer {
+                weight: round(&layer.weight),
+                ..layer.clone()
+            };
+            let kernels = amx::pack_kernels(&layer);
+            for rows in [0..h, 1..h - 1] {
+                for relu in [false, true] {
+                    let len = rows.len() * w * cout;
+                    let (mut exact, mut rounded, mut tiles) =
+                        (vec![0f32; len], vec![0f32; len], vec![0f32; len]);
+                    let mut columns = Vec::new();
+                    convolve_direct_rows(
+                        &input,
+                        &layer,
+                        relu,
+                        rows.clone(),
+                        &mut exact,
+                        &mut columns,
+                    );
+                    let direct = (&rounded_input, &rounded_layer, relu);
+                    convolve_direct_rows(
+                        direct.0,
+                        direct.1,
+                        relu,
+                        rows.clone(),
+                        &mut rounded,
+                        &mut columns,
+                    );
+                    let placement = (&layer, kernels.as_slice(), relu);
+                    let mut scratch = amx::AmxScratch::default();
+                    amx::convolve_rows_portable(
+                        &input,
+                        placement,
+                        rows.clone(),
+                        &mut tiles,
+                        &mut scratch,
+                    );
+                    // The twin is the direct convolution of the rounded values, up to the
+                    // order of the f32 sums.
+                    let (worst, scale) = worst_difference(&rounded, &tiles);
+                    assert!(
+                        worst <= 1e-5 * scale.max(1.0),
+                        "{w}x{h} {cin}->{cout} twin: {worst}"
+                    );
+                    // The rounding moves the f32 result by about 2⁻⁹ of the terms' scale.
+                    let (worst, scale) = worst_difference(&exact, &tiles);
+                    assert!(
+                        worst <= 2e-2 * scale.max(1.0),
+                        "{w}x{h} {cin}->{cout} rounding: {worst}"
+                    );
+                    if crate::cpu::has_amx_bf16() {
+                        let mut fast = vec![0f32; len];
+                        // SAFETY: the CPU has AMX (checked) and the layer fits.
+                        unsafe {
+                            amx::convolve_rows(
+                                &input,
+                                placement,
+                                rows.clone(),
+                                &mut fast,
+                                &mut scratch,
+                            )
+                        };
+                        let (worst, scale) = worst_difference(&tiles, &fast);
+                        assert!(
+                            worst <= 1e-5 * scale.max(1.0),
+                            "{w}x{h} {cin}->{cout} tiles: {worst}"
                         );
                     }
                 }
