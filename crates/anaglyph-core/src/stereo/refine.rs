@@ -9,20 +9,59 @@ use rayon::prelude::*;
 /// Largest left–right disagreement (pixels) of a consistent match.
 pub const LEFT_RIGHT_TOLERANCE: f32 = 1.0;
 
-/// The disparity of least cost at every pixel (a whole disparity of the volume's range).
+/// The disparity of least cost at every pixel (a whole disparity of the volume's range;
+/// the first of equal least costs, the range's first where every cost is NaN or +∞).
 pub fn winner_take_all(volume: &CostVolume) -> Vec<f32> {
-    volume
-        .data
-        .chunks_exact(volume.count())
-        .map(|costs| {
-            let (best, _) =
-                costs.iter().enumerate().fold(
-                    (0, f32::INFINITY),
-                    |b, (d, &c)| if c < b.1 { (d, c) } else { b },
-                );
-            volume.range.at(best)
-        })
-        .collect()
+    let n = volume.count().max(1);
+    let mut out = vec![0f32; volume.data.len() / n];
+    out.par_chunks_mut(WTA_PIXELS_PER_TASK)
+        .zip(volume.data.par_chunks(WTA_PIXELS_PER_TASK * n))
+        .for_each(|(out, costs)| {
+            for (value, costs) in out.iter_mut().zip(costs.chunks_exact(n)) {
+                *value = volume.range.at(first_minimum(costs));
+            }
+        });
+    out
+}
+
+/// Pixels per rayon task of the winner-take-all.
+const WTA_PIXELS_PER_TASK: usize = 4096;
+
+/// Index of the first least value of `costs` (NaN never least; 0 where none is below
+/// +∞). The least value in eight independent lanes, which the compiler vectorises, then
+/// the first index holding it: the same index as a scan that keeps the first strictly
+/// smaller value ([`first_minimum_scan`], the twin the tests compare with).
+#[inline]
+fn first_minimum(costs: &[f32]) -> usize {
+    const LANES: usize = 8;
+    let mut lanes = [f32::INFINITY; LANES];
+    let mut chunks = costs.chunks_exact(LANES);
+    for chunk in &mut chunks {
+        for (lane, &c) in lanes.iter_mut().zip(chunk) {
+            *lane = if c < *lane { c } else { *lane };
+        }
+    }
+    let least =
+        (lanes.iter().chain(chunks.remainder()))
+            .fold(f32::INFINITY, |m, &c| if c < m { c } else { m });
+    if least < f32::INFINITY {
+        costs.iter().position(|&c| c == least).unwrap_or(0)
+    } else {
+        0
+    }
+}
+
+/// The plain scan [`first_minimum`] must agree with.
+#[cfg(test)]
+fn first_minimum_scan(costs: &[f32]) -> usize {
+    costs
+        .iter()
+        .enumerate()
+        .fold(
+            (0, f32::INFINITY),
+            |b, (d, &c)| if c < b.1 { (d, c) } else { b },
+        )
+        .0
 }
 
 /// Invalidates (NaN) left disparities that the right view's own winner-take-all, computed
@@ -114,6 +153,38 @@ pub fn windowed_subpixel(raw: &CostVolume, disparity: &[f32], radius: usize) -> 
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_lane_minimum_picks_the_same_disparity_as_the_scan() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for len in [1usize, 3, 7, 8, 9, 16, 31, 64, 65] {
+            for _ in 0..400 {
+                let costs: Vec<f32> = (0..len)
+                    .map(|_| match next() % 10 {
+                        0 => f32::NAN,
+                        1 => f32::INFINITY,
+                        2 => -0.0,
+                        3 => 0.0,
+                        // Few distinct values, so that ties are common.
+                        _ => (next() % 5) as f32 * 0.25,
+                    })
+                    .collect();
+                assert_eq!(
+                    super::first_minimum(&costs),
+                    super::first_minimum_scan(&costs),
+                    "{costs:?}"
+                );
+            }
+            let none = vec![f32::NAN; len];
+            assert_eq!(super::first_minimum(&none), 0);
+        }
+    }
+
     use super::*;
     use crate::stereo::DisparityRange;
 
