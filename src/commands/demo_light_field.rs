@@ -95,10 +95,9 @@ fn scores(
         nb,
         Some(&mask),
     )?;
-    let n = all.len() as f64;
     Ok(RunScores {
-        mean_psnr: all.iter().map(|s| s.psnr).sum::<f64>() / n,
-        mean_ssim: all.iter().map(|s| s.ssim).sum::<f64>() / n,
+        mean_psnr: mean(all.iter().map(|s| s.psnr)),
+        mean_ssim: mean(all.iter().map(|s| s.ssim)),
         reference: all.swap_remove(0),
         reference_seen_by_all: seen,
         min_agreement: field

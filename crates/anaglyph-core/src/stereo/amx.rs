@@ -96,12 +96,21 @@ fn padded_width(w: usize) -> usize {
     w.div_ceil(PIXELS) * PIXELS + 2
 }
 
-/// Rows `rows.start − 1 ..< rows.end + 1` of `input` (zeros outside it) rounded to
+/// Checks that `layer` fits the tiles, reads `input` and has `kernels` packed from it, then
+/// rounds rows `rows.start − 1 ..< rows.end + 1` of `input` (zeros outside it) to
 /// bfloat16 into `padded`, `padded[(row·padded_width + 1 + x)·channels + c]`, the columns
 /// left of x = 0 and from x = w on zero.
 #[inline(always)]
-fn pad_rows(input: &FeatureMap, rows: &Range<usize>, padded: &mut Vec<u16>) {
+fn pad_rows(
+    input: &FeatureMap,
+    (layer, kernels): (&ConvLayer, &[u16]),
+    rows: &Range<usize>,
+    padded: &mut Vec<u16>,
+) {
     let (w, h, cin) = (input.width, input.height, input.channels);
+    assert!(
+        fits(layer) && cin == layer.inputs && kernels.len() == TAPS * layer.inputs * layer.outputs
+    );
     let pw = padded_width(w);
     let row_values = pw * cin;
     padded.clear();
@@ -149,9 +158,8 @@ pub(crate) unsafe fn convolve_rows(
 ) {
     use std::arch::asm;
     let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
-    assert!(fits(layer) && input.channels == cin && kernels.len() == TAPS * cin * cout);
+    pad_rows(input, (layer, kernels), &rows, &mut scratch.padded);
     let pw = padded_width(w);
-    pad_rows(input, &rows, &mut scratch.padded);
     scratch.sums.resize(pw * cout, 0.0);
     let (blocks_in, blocks_out) = (cin / CHANNELS, cout / BLOCK);
     // Palette 1, all eight tiles 16 rows of 64 bytes.
@@ -247,9 +255,8 @@ pub(crate) fn convolve_rows_portable(
     scratch: &mut AmxScratch,
 ) {
     let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
-    assert!(fits(layer) && input.channels == cin && kernels.len() == TAPS * cin * cout);
+    pad_rows(input, (layer, kernels), &rows, &mut scratch.padded);
     let pw = padded_width(w);
-    pad_rows(input, &rows, &mut scratch.padded);
     let (blocks_in, blocks_out) = (cin / CHANNELS, cout / BLOCK);
     let mut sums = vec![0f32; w * cout];
     for (r, out_row) in out[..rows.len() * w * cout]

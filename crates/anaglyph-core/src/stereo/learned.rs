@@ -14,12 +14,32 @@ use rayon::prelude::*;
 /// `dst = a · b` for row-major `a` (m × k), `b` (k × n), `dst` (m × n), single-threaded
 /// (callers parallelise over blocks).
 pub(crate) fn matmul(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
-    assert!(dst.len() >= m * n && a.len() >= m * k && b.len() >= k * n);
+    assert!(b.len() >= k * n);
+    // bᵀ's element (i, j) is b[i·n + j]: column stride 1, row stride n.
+    product(dst, a, (b, 1, n as isize), (m, n, k));
+}
+
+/// `dst = a · bᵀ` for row-major `a` (m × k), `b` (n × k), `dst` (m × n), single-threaded.
+fn matmul_transposed(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
+    assert!(b.len() >= n * k);
+    // bᵀ's element (i, j) is b[j·k + i]: column stride k, row stride 1.
+    product(dst, a, (b, k as isize, 1), (m, n, k));
+}
+
+/// `dst = a · B` for row-major `a` (m × k) and `dst` (m × n), where B's element (i, j) is
+/// `b[i·row_stride + j·col_stride]` (the caller checks that `b` holds them all).
+fn product(
+    dst: &mut [f32],
+    a: &[f32],
+    (b, col_stride, row_stride): (&[f32], isize, isize),
+    (m, n, k): (usize, usize, usize),
+) {
+    assert!(dst.len() >= m * n && a.len() >= m * k);
     if m == 0 || n == 0 {
         return;
     }
-    // SAFETY: the assertion above keeps every access of the row-major strides in bounds,
-    // and `dst` does not alias `a` or `b` (distinct borrows).
+    // SAFETY: the assertions here and in the callers keep every access of the strides in
+    // bounds, and `dst` does not alias `a` or `b` (distinct borrows).
     unsafe {
         gemm::gemm(
             m,
@@ -33,8 +53,8 @@ pub(crate) fn matmul(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, 
             1,
             k as isize,
             b.as_ptr(),
-            1,
-            n as isize,
+            col_stride,
+            row_stride,
             0.0,
             1.0,
             false,
@@ -97,60 +117,6 @@ pub fn learned_cost_volume_either_sign(
     let mut volume = feature_costs(network, &fl, &fr, range);
     volume.keep_lower(&feature_costs(network, &fl, &fr_negated, range));
     volume
-}
-
-/// Dot product with eight independent accumulators, so that the compiler vectorises it.
-#[cfg(test)]
-#[inline]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut lanes = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(p, q)| p * q)
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            lanes[i] += x[i] * y[i];
-        }
-    }
-    lanes.iter().sum::<f32>() + tail
-}
-
-/// `dst = a · bᵀ` for row-major `a` (m × k), `b` (n × k), `dst` (m × n), single-threaded.
-fn matmul_transposed(dst: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
-    assert!(dst.len() >= m * n && a.len() >= m * k && b.len() >= n * k);
-    if m == 0 || n == 0 {
-        return;
-    }
-    // SAFETY: the assertion above keeps every access in bounds: bᵀ's element (i, j) is
-    // b[j·k + i], so its column stride is k and its row stride 1; `dst` does not alias
-    // `a` or `b` (distinct borrows).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.as_ptr(),
-            1,
-            k as isize,
-            b.as_ptr(),
-            k as isize,
-            1,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
 }
 
 /// Left pixels per product block of [`cosine_costs`]: the block's right pixels are these
@@ -287,6 +253,11 @@ fn accurate_costs(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The plain dot product the blocked products are checked against.
+    fn dot(a: &[f32], b: &[f32]) -> f32 {
+        a.iter().zip(b).map(|(p, q)| p * q).sum()
+    }
 
     /// Unit feature vectors of deterministic noise.
     fn unit_features(w: usize, h: usize, c: usize, seed: u64) -> FeatureMap {

@@ -3,6 +3,7 @@
 //! refinement (as MC-CNN: a parabola through the costs at d − 1, d, d + 1) and a windowed
 //! equiangular refinement on the raw costs, which avoids the parabola's pixel locking.
 
+use super::sgm::minimum;
 use super::{right_disparity, CostVolume};
 use rayon::prelude::*;
 
@@ -28,22 +29,12 @@ pub fn winner_take_all(volume: &CostVolume) -> Vec<f32> {
 const WTA_PIXELS_PER_TASK: usize = 4096;
 
 /// Index of the first least value of `costs` (NaN never least; 0 where none is below
-/// +∞). The least value in eight independent lanes, which the compiler vectorises, then
-/// the first index holding it: the same index as a scan that keeps the first strictly
-/// smaller value ([`first_minimum_scan`], the twin the tests compare with).
+/// +∞): the least value in eight independent lanes ([`minimum`], vectorised), then the
+/// first index holding it, the same index as a scan that keeps the first strictly smaller
+/// value ([`first_minimum_scan`], the twin the tests compare with).
 #[inline]
 fn first_minimum(costs: &[f32]) -> usize {
-    const LANES: usize = 8;
-    let mut lanes = [f32::INFINITY; LANES];
-    let mut chunks = costs.chunks_exact(LANES);
-    for chunk in &mut chunks {
-        for (lane, &c) in lanes.iter_mut().zip(chunk) {
-            *lane = if c < *lane { c } else { *lane };
-        }
-    }
-    let least =
-        (lanes.iter().chain(chunks.remainder()))
-            .fold(f32::INFINITY, |m, &c| if c < m { c } else { m });
+    let least = minimum(costs);
     if least < f32::INFINITY {
         costs.iter().position(|&c| c == least).unwrap_or(0)
     } else {

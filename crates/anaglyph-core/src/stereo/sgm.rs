@@ -241,10 +241,10 @@ impl PathCosts {
     }
 }
 
-/// The least of a slice (+∞ when empty), over eight independent lanes so that it
-/// vectorises.
+/// The least of a slice (+∞ when empty; NaN never least), over eight independent lanes
+/// so that it vectorises.
 #[inline(always)]
-fn minimum(values: &[f32]) -> f32 {
+pub(super) fn minimum(values: &[f32]) -> f32 {
     let mut lanes = [f32::INFINITY; 8];
     let chunks = values.chunks_exact(8);
     let tail = chunks
@@ -371,7 +371,7 @@ fn aggregate_along_columns(
 ) {
     let (w, h, dm) = (volume.width, volume.height, volume.count());
     let min_disp = volume.range.min as i64;
-    let divisor = divisors(params);
+    let (divisor, base) = (divisors(params), direction_penalties(params, 0));
     let edges: Vec<(i64, Vec<bool>, Vec<bool>)> = dys
         .iter()
         .map(|&dy| {
@@ -400,7 +400,6 @@ fn aggregate_along_columns(
             let mut previous = vec![PathCosts::new(dm); xs.len()];
             let mut current = previous.clone();
             for (dy, left_edges, right_edges) in &edges {
-                let base = direction_penalties(params, 0);
                 for i in 0..h {
                     let y = if *dy > 0 { i } else { h - 1 - i };
                     let row_edges = &right_edges[y * w..(y + 1) * w];

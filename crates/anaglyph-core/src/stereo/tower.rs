@@ -353,6 +353,30 @@ mod tests {
             .collect()
     }
 
+    /// A `w × h` map of `cin` channels and a 3×3 layer from `cin` to `cout` channels, of
+    /// noise seeded `seed` (the map), `seed + 1` (the weights, scaled by 0.3) and `seed + 2`
+    /// (the bias).
+    fn random_convolution(
+        (w, h, cin, cout): (usize, usize, usize, usize),
+        seed: u64,
+    ) -> (FeatureMap, ConvLayer) {
+        let input = FeatureMap {
+            width: w,
+            height: h,
+            channels: cin,
+            data: noise(w * h * cin, seed),
+        };
+        let layer = ConvLayer {
+            inputs: cin,
+            outputs: cout,
+            weight: (noise(KERNEL * KERNEL * cin * cout, seed + 1).iter())
+                .map(|v| v * 0.3)
+                .collect(),
+            bias: noise(cout, seed + 2),
+        };
+        (input, layer)
+    }
+
     /// The largest difference between two equally long slices, and the largest magnitude
     /// of the first.
     fn worst_difference(want: &[f32], got: &[f32]) -> (f32, f32) {
@@ -371,20 +395,7 @@ mod tests {
             (5, 1, 9, 3),
             (1, 6, 12, 5),
         ] {
-            let input = FeatureMap {
-                width: w,
-                height: h,
-                channels: cin,
-                data: noise(w * h * cin, 1),
-            };
-            let layer = ConvLayer {
-                inputs: cin,
-                outputs: cout,
-                weight: (noise(KERNEL * KERNEL * cin * cout, 2).iter())
-                    .map(|v| v * 0.3)
-                    .collect(),
-                bias: noise(cout, 3),
-            };
+            let (input, layer) = random_convolution((w, h, cin, cout), 1);
             let kernels = transform_kernels(&layer);
             // Every row, and rows inside the map whose neighbours above and below exist.
             for rows in [0..h, 1.min(h)..h.saturating_sub(2).max(1.min(h))] {
@@ -436,20 +447,7 @@ mod tests {
                 .collect()
         };
         for (w, h, cin, cout) in [(37, 23, 32, 32), (70, 5, 64, 64), (1, 3, 32, 64)] {
-            let input = FeatureMap {
-                width: w,
-                height: h,
-                channels: cin,
-                data: noise(w * h * cin, 5),
-            };
-            let layer = ConvLayer {
-                inputs: cin,
-                outputs: cout,
-                weight: (noise(KERNEL * KERNEL * cin * cout, 6).iter())
-                    .map(|v| v * 0.3)
-                    .collect(),
-                bias: noise(cout, 7),
-            };
+            let (input, layer) = random_convolution((w, h, cin, cout), 5);
             assert!(amx::fits(&layer));
             let rounded_input = FeatureMap {
                 data: round(&input.data),
