@@ -56,6 +56,7 @@ pub mod refine;
 pub mod register;
 pub mod rig;
 pub mod scene;
+mod scratch;
 pub mod simulate;
 pub mod solve;
 pub mod spectrum;

@@ -16,6 +16,14 @@ pub fn zeroed_large<T: bytemuck::Zeroable + Copy>(len: usize) -> Vec<T> {
     buffer
 }
 
+/// A `Vec<T>` of `len` copies of `value`, advised for huge pages when large (the pages
+/// come in zeroed and are then written once).
+pub fn filled_large<T: bytemuck::Zeroable + Copy>(len: usize, value: T) -> Vec<T> {
+    let mut buffer = zeroed_large(len);
+    buffer.fill(value);
+    buffer
+}
+
 #[cfg(target_os = "linux")]
 fn advise_huge_pages<T>(buffer: &[T]) {
     const HUGE_PAGE: usize = 2 << 20;
@@ -53,5 +61,8 @@ mod tests {
         v[12345] = 1.5;
         assert_eq!(v.iter().sum::<f32>(), 1.5);
         assert!(super::zeroed_large::<f64>(3).iter().all(|&x| x == 0.0));
+        assert!(super::filled_large::<f32>(3 << 20, 0.25)
+            .iter()
+            .all(|&x| x == 0.25));
     }
 }

@@ -21,7 +21,7 @@ pub use disparity_preview::{ramp_colour, write_disparity_preview};
 pub use envi::{
     read_envi, read_envi_shape, write_envi, EnviCube, EnviShape, MAX_ENVI_HEADER_BYTES,
 };
-pub use large_buffer::zeroed_large;
+pub use large_buffer::{filled_large, zeroed_large};
 pub use linear_image::{
     from_u16_sample, from_u8_sample, max_image_pixels, odd_size_out, read_image_header,
     read_linear_image, to_u16_sample, write_png16, ImageHeader, LinearImage,

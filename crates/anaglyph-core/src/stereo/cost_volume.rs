@@ -29,7 +29,7 @@ impl CostVolume {
             width,
             height,
             range,
-            data: vec![Self::INVALID; width * height * range.count()],
+            data: crate::io::filled_large(width * height * range.count(), Self::INVALID),
         }
     }
 

@@ -7,8 +7,9 @@
 use super::contrast::negated;
 use super::cost_volume::{matched_indices, right_column};
 use super::network::MatchingNetwork;
-use super::tower::{tower_features, FeatureMap};
+use super::tower::{tower_features, FeatureMap, StripScratch, Tower, STRIP_ROWS};
 use super::{CostVolume, DisparityRange, GreyImage};
+use crate::scratch::ScratchPool;
 use rayon::prelude::*;
 
 /// `dst = a · b` for row-major `a` (m × k), `b` (k × n), `dst` (m × n), single-threaded
@@ -73,26 +74,14 @@ pub fn learned_cost_volume(
     right: &GreyImage,
     range: DisparityRange,
 ) -> CostVolume {
+    if !network.is_accurate() {
+        return streamed_cosine_costs(network, left, &[right], range);
+    }
     let (fl, fr) = rayon::join(
         || tower_features(network, left),
         || tower_features(network, right),
     );
-    feature_costs(network, &fl, &fr, range)
-}
-
-/// The costs between two images' features: cosine for fast networks, the fully connected
-/// head for accurate ones.
-fn feature_costs(
-    network: &MatchingNetwork,
-    fl: &FeatureMap,
-    fr: &FeatureMap,
-    range: DisparityRange,
-) -> CostVolume {
-    if network.is_accurate() {
-        accurate_costs(network, fl, fr, range)
-    } else {
-        cosine_costs(fl, fr, range)
-    }
+    accurate_costs(network, &fl, &fr, range)
 }
 
 /// [`learned_cost_volume`] for either sign of the right image at every pixel and
@@ -105,6 +94,9 @@ pub fn learned_cost_volume_either_sign(
     range: DisparityRange,
 ) -> CostVolume {
     let negated_right = negated(right);
+    if !network.is_accurate() {
+        return streamed_cosine_costs(network, left, &[right, &negated_right], range);
+    }
     let (fl, (fr, fr_negated)) = rayon::join(
         || tower_features(network, left),
         || {
@@ -114,18 +106,67 @@ pub fn learned_cost_volume_either_sign(
             )
         },
     );
-    let mut volume = feature_costs(network, &fl, &fr, range);
-    volume.keep_lower(&feature_costs(network, &fl, &fr_negated, range));
+    let mut volume = accurate_costs(network, &fl, &fr, range);
+    volume.keep_lower(&accurate_costs(network, &fl, &fr_negated, range));
     volume
 }
 
-/// Left pixels per product block of [`cosine_costs`]: the block's right pixels are these
+/// The fast network's cosine costs of `left` against each of `rights`, the lowest kept
+/// ([`CostVolume::keep_lower`]), strip by strip: a strip's rows of every image go through
+/// the tower and straight into that strip's costs, so no whole image's features are held
+/// (two 95 MB maps for a 741×500 pair) and they are used while in cache. Equal to
+/// [`cosine_costs`] of [`tower_features`].
+fn streamed_cosine_costs(
+    network: &MatchingNetwork,
+    left: &GreyImage,
+    rights: &[&GreyImage],
+    range: DisparityRange,
+) -> CostVolume {
+    let (w, h, n) = (left.width, left.height, range.count());
+    let tower = Tower::new(network);
+    let (left_input, right_inputs) = rayon::join(
+        || Tower::input(left),
+        || rights.iter().map(|r| Tower::input(r)).collect::<Vec<_>>(),
+    );
+    let c = tower.features();
+    let mut volume = CostVolume::new(w, h, range);
+    let pool = ScratchPool::<(StripScratch, [Vec<f32>; 4])>::new();
+    volume
+        .data
+        .par_chunks_mut(STRIP_ROWS * w * n)
+        .enumerate()
+        .for_each_init(
+            || pool.take(),
+            |lent, (strip, costs)| {
+                let (scratch, [fl, fr, products, other]) = &mut **lent;
+                let first = strip * STRIP_ROWS;
+                let rows = first..first + costs.len() / (w * n);
+                tower.strip(&left_input, rows.clone(), fl, scratch);
+                for (i, right) in right_inputs.iter().enumerate() {
+                    tower.strip(right, rows.clone(), fr, scratch);
+                    let pairs = fl.chunks_exact(w * c).zip(fr.chunks_exact(w * c));
+                    for (row, (lr, rr)) in costs.chunks_exact_mut(w * n).zip(pairs) {
+                        if i == 0 {
+                            cosine_row(lr, rr, c, range, row, products);
+                        } else {
+                            other.resize(w * n, CostVolume::INVALID);
+                            cosine_row(lr, rr, c, range, other, products);
+                            row.iter_mut()
+                                .zip(&*other)
+                                .for_each(|(a, &b)| *a = a.min(b));
+                        }
+                    }
+                }
+            },
+        );
+    volume
+}
+
+/// Left pixels per product block of [`cosine_row`]: the block's right pixels are these
 /// plus the range's width, so wider blocks waste fewer products outside the band.
 const COSINE_BLOCK: usize = 48;
 
-/// `(1 − fl·fr)/2` over L2-normalised features. Per row, each block of left pixels is
-/// multiplied with all the right pixels its disparities reach in one matrix product
-/// (`gemm`), of which the band of matched pairs is kept.
+/// `(1 − fl·fr)/2` over L2-normalised features, row by row ([`cosine_row`]).
 pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, range: DisparityRange) -> CostVolume {
     let (w, h, c, n) = (fl.width, fl.height, fl.channels, range.count());
     let mut volume = CostVolume::new(w, h, range);
@@ -134,35 +175,54 @@ pub fn cosine_costs(fl: &FeatureMap, fr: &FeatureMap, range: DisparityRange) -> 
         .par_chunks_mut(w * n)
         .enumerate()
         .for_each_init(Vec::new, |products, (y, row)| {
-            let (left_row, right_row) = (&fl.data[y * w * c..][..w * c], &fr.data[y * w * c..]);
-            for x0 in (0..w).step_by(COSINE_BLOCK) {
-                let xs = x0..(x0 + COSINE_BLOCK).min(w);
-                // Right columns x − d for x in the block and d in the range, in the image.
-                let first = (x0 as i64 - range.max as i64).max(0);
-                let last = (xs.end as i64 - 1 - range.min as i64).min(w as i64 - 1);
-                if first > last {
-                    continue;
-                }
-                let (first, columns) = (first as usize, (last - first + 1) as usize);
-                products.resize(xs.len() * columns, 0.0);
-                matmul_transposed(
-                    products,
-                    &left_row[x0 * c..xs.end * c],
-                    &right_row[first * c..][..columns * c],
-                    xs.len(),
-                    columns,
-                    c,
-                );
-                for (x, dots) in xs.zip(products.chunks_exact(columns)) {
-                    let costs = &mut row[x * n..][..n];
-                    for k in matched_indices(x, w, range) {
-                        let dot = dots[right_column(x, k, range) - first];
-                        costs[k] = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
-                    }
-                }
-            }
+            let rows = (
+                &fl.data[y * w * c..][..w * c],
+                &fr.data[y * w * c..][..w * c],
+            );
+            cosine_row(rows.0, rows.1, c, range, row, products);
         });
     volume
+}
+
+/// One row's cosine costs (`costs`: width × the range's count, its unmatched entries
+/// left as they are) from its left and right features (width × `c`). Each block of left
+/// pixels is multiplied with all the right pixels its disparities reach in one matrix
+/// product (`gemm`), of which the band of matched pairs is kept.
+fn cosine_row(
+    left_row: &[f32],
+    right_row: &[f32],
+    c: usize,
+    range: DisparityRange,
+    costs: &mut [f32],
+    products: &mut Vec<f32>,
+) {
+    let (w, n) = (left_row.len() / c.max(1), range.count());
+    for x0 in (0..w).step_by(COSINE_BLOCK) {
+        let xs = x0..(x0 + COSINE_BLOCK).min(w);
+        // Right columns x − d for x in the block and d in the range, in the image.
+        let first = (x0 as i64 - range.max as i64).max(0);
+        let last = (xs.end as i64 - 1 - range.min as i64).min(w as i64 - 1);
+        if first > last {
+            continue;
+        }
+        let (first, columns) = (first as usize, (last - first + 1) as usize);
+        products.resize(xs.len() * columns, 0.0);
+        matmul_transposed(
+            products,
+            &left_row[x0 * c..xs.end * c],
+            &right_row[first * c..][..columns * c],
+            xs.len(),
+            columns,
+            c,
+        );
+        for (x, dots) in xs.zip(products.chunks_exact(columns)) {
+            let pixel = &mut costs[x * n..][..n];
+            for k in matched_indices(x, w, range) {
+                let dot = dots[right_column(x, k, range) - first];
+                pixel[k] = (0.5 - 0.5 * dot).clamp(0.0, 1.0);
+            }
+        }
+    }
 }
 
 /// The accurate network's fully connected head over every (pixel, disparity) pair. The
@@ -313,5 +373,39 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A `w × h` grey image of deterministic noise with some structure.
+    fn grey(w: usize, h: usize, seed: u64) -> GreyImage {
+        let noise = unit_features(w, h, 1, seed);
+        GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: (noise.data.iter().enumerate())
+                .map(|(i, v)| 0.5 + 0.3 * v + 0.1 * ((i % w) as f32 * 0.3).sin())
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn streamed_costs_equal_the_costs_of_whole_feature_maps() {
+        let network = MatchingNetwork::default_fast().expect("embedded network");
+        // 75 rows: two whole strips and a ragged one; a signed range.
+        let (w, h) = (57, 75);
+        let (left, right) = (grey(w, h, 3), grey(w, h, 4));
+        let range = DisparityRange::new(-5, 12).expect("range");
+        let (fl, fr) = (
+            tower_features(&network, &left),
+            tower_features(&network, &right),
+        );
+        let want = cosine_costs(&fl, &fr, range);
+        let got = learned_cost_volume(&network, &left, &right, range);
+        assert_eq!(got.data, want.data);
+        let mut want = want;
+        let fr_negated = tower_features(&network, &negated(&right));
+        want.keep_lower(&cosine_costs(&fl, &fr_negated, range));
+        let got = learned_cost_volume_either_sign(&network, &left, &right, range);
+        assert_eq!(got.data, want.data);
     }
 }

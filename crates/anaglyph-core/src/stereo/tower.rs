@@ -15,6 +15,7 @@ use super::learned::matmul;
 use super::network::{ConvLayer, MatchingNetwork, KERNEL};
 use super::winograd::{transform_kernels, winograd_convolve_rows, WinogradScratch};
 use super::GreyImage;
+use crate::scratch::ScratchPool;
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -47,7 +48,7 @@ pub fn normalise_image(image: &GreyImage) -> GreyImage {
 
 /// Output rows per strip: the rows recomputed either side cost about 2/`STRIP_ROWS` of
 /// the tower (4 layers), and the strip's buffers stay a few MB.
-const STRIP_ROWS: usize = 32;
+pub(crate) const STRIP_ROWS: usize = 32;
 
 /// Output pixels per `gemm` block of the im2col convolution (a few hundred KB of columns).
 const BLOCK_PIXELS: usize = 1024;
@@ -209,9 +210,65 @@ pub fn tower_features(network: &MatchingNetwork, image: &GreyImage) -> FeatureMa
 /// Per-thread buffers of a strip: the hidden layers' outputs in turn, and the
 /// convolutions'.
 #[derive(Default)]
-struct StripScratch {
+pub(crate) struct StripScratch {
     maps: [FeatureMap; 2],
     conv: ConvScratch,
+}
+
+/// A network's tower with its layers prepared once, to run over the strips of one or
+/// several images.
+pub(crate) struct Tower<'a> {
+    layers: Vec<PreparedLayer<'a>>,
+    /// The last layer's outputs (1 without layers).
+    features: usize,
+    /// Fast networks' features are L2-normalised.
+    normalise: bool,
+}
+
+impl<'a> Tower<'a> {
+    pub(crate) fn new(network: &'a MatchingNetwork) -> Self {
+        let depth = network.conv.len();
+        let layers: Vec<PreparedLayer> = (network.conv.iter().enumerate())
+            .map(|(i, layer)| PreparedLayer::new(layer, i + 1 < depth || network.is_accurate()))
+            .collect();
+        let features = layers.last().map_or(1, |l| l.layer.outputs);
+        Tower {
+            layers,
+            features,
+            normalise: !network.is_accurate(),
+        }
+    }
+
+    /// Values per pixel of [`Self::strip`]'s output.
+    pub(crate) fn features(&self) -> usize {
+        self.features
+    }
+
+    /// The tower's input for an image: normalised ([`normalise_image`]), one channel.
+    pub(crate) fn input(image: &GreyImage) -> FeatureMap {
+        FeatureMap {
+            width: image.width,
+            height: image.height,
+            channels: 1,
+            data: normalise_image(image).data,
+        }
+    }
+
+    /// The features of `input`'s rows `rows` into `out` (resized to rows × width ×
+    /// [`Self::features`]), equal to those rows of the whole image's features.
+    pub(crate) fn strip(
+        &self,
+        input: &FeatureMap,
+        rows: Range<usize>,
+        out: &mut Vec<f32>,
+        scratch: &mut StripScratch,
+    ) {
+        out.resize(rows.len() * input.width * self.features, 0.0);
+        strip_features(input, &self.layers, rows, out, scratch);
+        if self.normalise {
+            out.chunks_exact_mut(self.features).for_each(normalise_l2);
+        }
+    }
 }
 
 /// [`tower_features`] with strips of `strip_rows` output rows.
@@ -248,34 +305,20 @@ fn strips_mapped<T: Copy + Default + Send>(
     map: impl Fn(&[f32], &mut [T]) + Sync,
 ) -> crate::image::Image<T> {
     let (w, h) = (image.width, image.height);
-    let input = FeatureMap {
-        width: w,
-        height: h,
-        channels: 1,
-        data: normalise_image(image).data,
-    };
-    let depth = network.conv.len();
-    let layers: Vec<PreparedLayer> = (network.conv.iter().enumerate())
-        .map(|(i, layer)| PreparedLayer::new(layer, i + 1 < depth || network.is_accurate()))
-        .collect();
-    let features = layers.last().map_or(1, |l| l.layer.outputs);
+    let (tower, input) = (Tower::new(network), Tower::input(image));
     let mut data = vec![T::default(); w * h * channels];
     let strip_len = strip_rows.max(1) * w * channels;
+    let pool = ScratchPool::<(StripScratch, Vec<f32>)>::new();
     data.par_chunks_mut(strip_len.max(1))
         .enumerate()
         .for_each_init(
-            || (StripScratch::default(), Vec::new()),
-            |(scratch, strip_features_buffer), (strip, out)| {
+            || pool.take(),
+            |lent, (strip, out)| {
+                let (scratch, features) = &mut **lent;
                 let first = strip * strip_rows;
                 let rows = first..first + out.len() / (w * channels).max(1);
-                strip_features_buffer.resize(rows.len() * w * features, 0.0);
-                strip_features(&input, &layers, rows, strip_features_buffer, scratch);
-                if !network.is_accurate() {
-                    strip_features_buffer
-                        .chunks_exact_mut(features)
-                        .for_each(normalise_l2);
-                }
-                map(strip_features_buffer, out);
+                tower.strip(&input, rows, features, scratch);
+                map(features, out);
             },
         );
     crate::image::Image {
