@@ -83,84 +83,167 @@ pub(crate) fn pack_kernels(layer: &ConvLayer) -> Vec<u16> {
     packed
 }
 
-/// Per-thread buffers: the padded bfloat16 input rows and one output row's sums.
-#[derive(Default)]
-pub(crate) struct AmxScratch {
-    padded: Vec<u16>,
-    sums: Vec<f32>,
-}
-
 /// The padded input's width in pixels for an image `w` wide: the output pixels rounded up
 /// to whole steps of 32, plus one zero column either side.
 fn padded_width(w: usize) -> usize {
     w.div_ceil(PIXELS) * PIXELS + 2
 }
 
-/// Checks that `layer` fits the tiles, reads `input` and has `kernels` packed from it, then
-/// rounds rows `rows.start − 1 ..< rows.end + 1` of `input` (zeros outside it) to
-/// bfloat16 into `padded`, `padded[(row·padded_width + 1 + x)·channels + c]`, the columns
-/// left of x = 0 and from x = w on zero.
-#[inline(always)]
-fn pad_rows(
-    input: &FeatureMap,
-    (layer, kernels): (&ConvLayer, &[u16]),
-    rows: &Range<usize>,
-    padded: &mut Vec<u16>,
-) {
-    let (w, h, cin) = (input.width, input.height, input.channels);
+/// A layer's input in bfloat16, zero-padded so that each tap of a block of 16 output
+/// pixels is one strided tile load: for output rows `first ..< first + rows` of an image
+/// `height` rows high, data row j holds image row `first + j − 1` (zeros outside the
+/// image), pixel x at column x + 1 of [`padded_width`] columns (zeros in the others),
+/// `data[(j·padded_width + 1 + x)·channels + c]`.
+#[derive(Default)]
+#[cfg_attr(test, derive(PartialEq, Debug))]
+pub(crate) struct Padded {
+    width: usize,
+    height: usize,
+    channels: usize,
+    first: usize,
+    rows: usize,
+    data: Vec<u16>,
+}
+
+impl Padded {
+    /// Lays the buffer out for output rows `rows` of a `width × height` image of
+    /// `channels` values per pixel: the padding columns and the rows outside the image
+    /// zeroed, the image's rows left to be written ([`Self::fill_from`] or a previous
+    /// layer's [`Destination::Padded`]).
+    pub(crate) fn prepare(
+        &mut self,
+        (width, height, channels): (usize, usize, usize),
+        rows: &Range<usize>,
+    ) {
+        let pw = padded_width(width);
+        let row_values = pw * channels;
+        (self.width, self.height, self.channels) = (width, height, channels);
+        (self.first, self.rows) = (rows.start, rows.len());
+        self.data.resize((rows.len() + 2) * row_values, 0);
+        for (j, row) in self.data.chunks_exact_mut(row_values).enumerate() {
+            if image_row(rows.start, height, j).is_some() {
+                row[..channels].fill(0);
+                row[(width + 1) * channels..].fill(0);
+            } else {
+                row.fill(0);
+            }
+        }
+    }
+
+    /// The image row that data row `j` holds, if inside the image.
+    fn image_row(&self, j: usize) -> Option<usize> {
+        image_row(self.first, self.height, j)
+    }
+
+    /// The values of image row `y`'s pixels (width × channels), which the layout holds.
+    fn pixels_mut(&mut self, y: usize) -> &mut [u16] {
+        let j = y + 1 - self.first;
+        let row_values = padded_width(self.width) * self.channels;
+        &mut self.data[j * row_values + self.channels..][..self.width * self.channels]
+    }
+
+    /// Rounds the image's rows from `input`, whose row 0 is image row `input_first` and
+    /// which holds every image row of the layout.
+    pub(crate) fn fill_from(&mut self, input: &FeatureMap, input_first: usize) {
+        let (w, c) = (self.width, self.channels);
+        assert!(input.width == w && input.channels == c);
+        for j in 0..self.rows + 2 {
+            let Some(y) = self.image_row(j) else { continue };
+            let local = y - input_first;
+            let src = &input.data[local * w * c..][..w * c];
+            for (d, &s) in self.pixels_mut(y).iter_mut().zip(src) {
+                *d = to_bf16(s);
+            }
+        }
+    }
+}
+
+/// The image row that data row `j` of a [`Padded`] layout for output rows from `first`
+/// holds, if inside an image `height` rows high.
+fn image_row(first: usize, height: usize, j: usize) -> Option<usize> {
+    (first + j).checked_sub(1).filter(|&y| y < height)
+}
+
+/// Where a tile convolution's output rows go.
+pub(crate) enum Destination<'a> {
+    /// f32 values, `rows × width × outputs`.
+    Values(&'a mut [f32]),
+    /// The next layer's input, rounded to bfloat16: prepared for output rows whose input
+    /// rows inside the image are these rows.
+    Padded(&'a mut Padded),
+}
+
+/// Checks that `layer` fits the tiles and reads `input`, has `kernels` packed from it,
+/// and that `out` takes its output.
+fn check(input: &Padded, layer: &ConvLayer, kernels: &[u16], out: &Destination<'_>) {
     assert!(
-        fits(layer) && cin == layer.inputs && kernels.len() == TAPS * layer.inputs * layer.outputs
+        fits(layer)
+            && input.channels == layer.inputs
+            && kernels.len() == TAPS * layer.inputs * layer.outputs
+            && input.data.len() == (input.rows + 2) * padded_width(input.width) * input.channels
     );
-    let pw = padded_width(w);
-    let row_values = pw * cin;
-    padded.clear();
-    padded.resize((rows.len() + 2) * row_values, 0);
-    for (i, row) in padded.chunks_exact_mut(row_values).enumerate() {
-        let y = (rows.start + i).wrapping_sub(1);
-        if y >= h {
-            continue;
+    match out {
+        Destination::Values(values) => {
+            assert!(values.len() >= input.rows * input.width * layer.outputs)
         }
-        let src = &input.data[y * w * cin..(y + 1) * w * cin];
-        for (d, &s) in row[cin..][..w * cin].iter_mut().zip(src) {
-            *d = to_bf16(s);
+        Destination::Padded(next) => {
+            let (first, rows) = (input.first, input.rows);
+            assert!(next.width == input.width && next.channels == layer.outputs);
+            assert!((0..next.rows + 2).all(|j| next
+                .image_row(j)
+                .is_none_or(|y| (first..first + rows).contains(&y))));
         }
     }
 }
 
-/// One output row's sums (`sums[x·out + o]`, x up to the padded width) plus bias,
-/// optionally rectified, into `out` (`w × out`).
+/// Output pixel `x` of output row `r` (of the input's rows), values
+/// `outputs[first ..< first + sums.len()]`: the sums plus bias, optionally rectified,
+/// into `out`.
 #[inline(always)]
-fn finish_row(sums: &[f32], bias: &[f32], relu: bool, out: &mut [f32]) {
+fn finish(
+    sums: &[f32],
+    (bias, relu): (&[f32], bool),
+    (input, r, x, first): (&Padded, usize, usize, usize),
+    out: &mut Destination<'_>,
+) {
     let cout = bias.len();
-    for (dst, src) in out.chunks_exact_mut(cout).zip(sums.chunks_exact(cout)) {
-        for ((d, s), b) in dst.iter_mut().zip(src).zip(bias) {
-            let v = s + b;
-            *d = if relu { v.max(0.0) } else { v };
+    let bias = &bias[first..][..sums.len()];
+    let value = |s: f32, b: f32| if relu { (s + b).max(0.0) } else { s + b };
+    match out {
+        Destination::Values(values) => {
+            let dst = &mut values[(r * input.width + x) * cout + first..][..sums.len()];
+            for ((d, &s), &b) in dst.iter_mut().zip(sums).zip(bias) {
+                *d = value(s, b);
+            }
+        }
+        Destination::Padded(next) => {
+            let dst = &mut next.pixels_mut(input.first + r)[x * cout + first..][..sums.len()];
+            for ((d, &s), &b) in dst.iter_mut().zip(sums).zip(bias) {
+                *d = to_bf16(value(s, b));
+            }
         }
     }
 }
 
-/// Output rows `rows` of the "same" 3×3 convolution of `input` (rows outside it read as
-/// zeros) plus bias, optionally rectified, into `out` (`rows.len() × width × outputs`),
-/// on AMX tiles; `kernels` from [`pack_kernels`]. Single-threaded: callers parallelise.
+/// The "same" 3×3 convolution of `input`'s rows plus bias, optionally rectified, into
+/// `out`, on AMX tiles; `kernels` from [`pack_kernels`]. Single-threaded: callers
+/// parallelise. Each step of 32 pixels × 32 outputs sums its nine taps × the input
+/// channels in four tiles, stored to a 4 KB block and finished from there (L1).
 ///
 /// # Safety
 /// The CPU must have AMX-TILE and AMX-BF16, permitted for this process
 /// ([`crate::cpu::has_amx_bf16`]), and the layer must [`fits`].
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
-pub(crate) unsafe fn convolve_rows(
-    input: &FeatureMap,
+pub(crate) unsafe fn convolve(
+    input: &Padded,
     (layer, kernels, relu): (&ConvLayer, &[u16], bool),
-    rows: Range<usize>,
-    out: &mut [f32],
-    scratch: &mut AmxScratch,
+    mut out: Destination<'_>,
 ) {
     use std::arch::asm;
+    check(input, layer, kernels, &out);
     let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
-    pad_rows(input, (layer, kernels), &rows, &mut scratch.padded);
     let pw = padded_width(w);
-    scratch.sums.resize(pw * cout, 0.0);
     let (blocks_in, blocks_out) = (cin / CHANNELS, cout / BLOCK);
     // Palette 1, all eight tiles 16 rows of 64 bytes.
     let mut config = [0u8; 64];
@@ -169,20 +252,31 @@ pub(crate) unsafe fn convolve_rows(
         config[16 + 2 * t..18 + 2 * t].copy_from_slice(&64u16.to_le_bytes());
         config[48 + t] = BLOCK as u8;
     }
-    let (a_stride, b_stride, c_stride) = (cin * 2, 64usize, cout * 4);
-    let padded = scratch.padded.as_ptr();
-    let sums = scratch.sums.as_mut_ptr();
+    let (a_stride, b_stride, c_stride) = (cin * 2, 64usize, OUTPUTS * 4);
+    // Two blocks of sums in turn: a step's tiles go to one while the other, stored by
+    // the step before, is finished, so that the vector work overlaps the tile products.
+    let mut blocks = [[0f32; PIXELS * OUTPUTS]; 2];
+    // The (row, first pixel, first output) of the block stored last, not yet finished.
+    let mut pending: Option<(usize, usize, usize)> = None;
+    let padded = input.data.as_ptr();
+    let finish_block =
+        |block: &[f32; PIXELS * OUTPUTS], (r, x0, first), out: &mut Destination<'_>| {
+            for (p, sums) in block.chunks_exact(OUTPUTS).enumerate() {
+                let x = x0 + p;
+                if x < w {
+                    finish(sums, (&layer.bias, relu), (input, r, x, first), out);
+                }
+            }
+        };
     // SAFETY: the caller guarantees AMX; every tile load reads 16 rows of 64 bytes inside
-    // `padded` (x + tap column ≤ padded width − 1, rows within the rows + 2 padded ones)
-    // or inside `kernels` (whole packed tiles), and every store writes 16 rows of 64 bytes
-    // inside `sums` (pixels below the padded width − 2); the tiles are released before
-    // returning.
+    // the input (x + tap column ≤ padded width − 1, rows within its rows + 2, as `check`
+    // asserted) or inside `kernels` (whole packed tiles), and every store writes 16 rows
+    // of 64 bytes inside one of `blocks` (32 pixels × 32 outputs); the tiles are released
+    // before returning.
+    let mut turn = 0;
     unsafe {
         asm!("ldtilecfg [{}]", in(reg) config.as_ptr(), options(nostack, readonly));
-        for (r, out_row) in out[..rows.len() * w * cout]
-            .chunks_exact_mut(w * cout)
-            .enumerate()
-        {
+        for r in 0..input.rows {
             for x0 in (0..pw - 2).step_by(PIXELS) {
                 for step in 0..cout / OUTPUTS {
                     asm!(
@@ -220,9 +314,12 @@ pub(crate) unsafe fn convolve_rows(
                             );
                         }
                     }
-                    let c00 = sums.add(x0 * cout + step * OUTPUTS);
+                    if let Some(at) = pending {
+                        finish_block(&blocks[1 - turn], at, &mut out);
+                    }
+                    let c00 = blocks[turn].as_mut_ptr();
                     let c01 = c00.add(BLOCK);
-                    let c10 = c00.add(BLOCK * cout);
+                    let c10 = c00.add(BLOCK * OUTPUTS);
                     let c11 = c10.add(BLOCK);
                     asm!(
                         "tilestored [{c00} + {sc}*1], tmm0",
@@ -236,42 +333,41 @@ pub(crate) unsafe fn convolve_rows(
                         sc = in(reg) c_stride,
                         options(nostack)
                     );
+                    pending = Some((r, x0, step * OUTPUTS));
+                    turn = 1 - turn;
                 }
             }
-            finish_row(&scratch.sums[..w * cout], &layer.bias, relu, out_row);
         }
         asm!("tilerelease", options(nostack, nomem));
     }
+    if let Some(at) = pending {
+        finish_block(&blocks[1 - turn], at, &mut out);
+    }
 }
 
-/// [`convolve_rows`] in portable code, its twin for the tests: the same padded bfloat16
-/// rows and packed kernels, each output the f32 sum of the exact products.
+/// [`convolve`] in portable code, its twin for the tests: the same padded bfloat16 input
+/// and packed kernels, each output the f32 sum of the exact products.
 #[cfg(test)]
-pub(crate) fn convolve_rows_portable(
-    input: &FeatureMap,
+pub(crate) fn convolve_portable(
+    input: &Padded,
     (layer, kernels, relu): (&ConvLayer, &[u16], bool),
-    rows: Range<usize>,
-    out: &mut [f32],
-    scratch: &mut AmxScratch,
+    mut out: Destination<'_>,
 ) {
+    check(input, layer, kernels, &out);
     let (w, cin, cout) = (input.width, layer.inputs, layer.outputs);
-    pad_rows(input, (layer, kernels), &rows, &mut scratch.padded);
     let pw = padded_width(w);
     let (blocks_in, blocks_out) = (cin / CHANNELS, cout / BLOCK);
-    let mut sums = vec![0f32; w * cout];
-    for (r, out_row) in out[..rows.len() * w * cout]
-        .chunks_exact_mut(w * cout)
-        .enumerate()
-    {
-        sums.fill(0.0);
-        for (x, pixel) in sums.chunks_exact_mut(cout).enumerate() {
+    let mut sums = vec![0f32; cout];
+    for r in 0..input.rows {
+        for x in 0..w {
+            sums.fill(0.0);
             for tap in 0..TAPS {
                 let (ky, kx) = (tap / KERNEL, tap % KERNEL);
-                let a = &scratch.padded[((r + ky) * pw + x + kx) * cin..][..cin];
+                let a = &input.data[((r + ky) * pw + x + kx) * cin..][..cin];
                 for (c, &value) in a.iter().enumerate() {
                     let (b, pair_row, pair) = (c / CHANNELS, (c % CHANNELS) / 2, c % 2);
                     let value = from_bf16(value);
-                    for (o, sum) in pixel.iter_mut().enumerate() {
+                    for (o, sum) in sums.iter_mut().enumerate() {
                         let (j, n) = (o / BLOCK, o % BLOCK);
                         let tile = ((tap * blocks_in + b) * blocks_out + j) * TILE_VALUES;
                         let weight = kernels[tile + (pair_row * BLOCK + n) * 2 + pair];
@@ -279,8 +375,8 @@ pub(crate) fn convolve_rows_portable(
                     }
                 }
             }
+            finish(&sums, (&layer.bias, relu), (input, r, x, 0), &mut out);
         }
-        finish_row(&sums, &layer.bias, relu, out_row);
     }
 }
 

@@ -91,6 +91,17 @@ impl<'a> PreparedLayer<'a> {
         Self::without_tiles(layer, relu)
     }
 
+    /// The layer on tiles whatever the CPU: the tests run the tiles' portable twin where
+    /// it has none.
+    #[cfg(all(test, target_arch = "x86_64"))]
+    fn on_tiles(layer: &'a ConvLayer, relu: bool) -> Self {
+        PreparedLayer {
+            layer,
+            kernels: Kernels::Amx(super::amx::pack_kernels(layer)),
+            relu,
+        }
+    }
+
     /// The layer through Winograd's transform or direct, in f32 on any CPU.
     pub(crate) fn without_tiles(layer: &'a ConvLayer, relu: bool) -> Self {
         let kernels = if layer.inputs >= WINOGRAD_MIN_INPUTS {
@@ -118,15 +129,13 @@ impl<'a> PreparedLayer<'a> {
         match &self.kernels {
             // SAFETY: `new` chose AMX only where the CPU has it and the layer fits.
             #[cfg(target_arch = "x86_64")]
-            Kernels::Amx(kernels) => unsafe {
-                super::amx::convolve_rows(
-                    input,
-                    (self.layer, kernels, self.relu),
-                    rows,
-                    out,
-                    &mut scratch.amx,
-                )
-            },
+            Kernels::Amx(kernels) => {
+                let shape = (input.width, input.height, input.channels);
+                scratch.padded.prepare(shape, &rows);
+                scratch.padded.fill_from(input, 0);
+                let out = super::amx::Destination::Values(out);
+                convolve_on_tiles(&scratch.padded, (self.layer, kernels, self.relu), out)
+            }
             Kernels::Winograd(kernels) => winograd_convolve_rows(
                 input,
                 (self.layer, kernels, self.relu),
@@ -146,13 +155,29 @@ impl<'a> PreparedLayer<'a> {
     }
 }
 
+/// A layer's convolution on tiles ([`Kernels::Amx`]).
+#[cfg(target_arch = "x86_64")]
+fn convolve_on_tiles(
+    input: &super::amx::Padded,
+    placement: (&ConvLayer, &[u16], bool),
+    out: super::amx::Destination<'_>,
+) {
+    #[cfg(test)]
+    if !crate::cpu::has_amx_bf16() {
+        return super::amx::convolve_portable(input, placement, out);
+    }
+    // SAFETY: `Kernels::Amx` is chosen only where the CPU has AMX and the layer fits
+    // (`PreparedLayer::new`); the tests' `on_tiles` gets the twin above without AMX.
+    unsafe { super::amx::convolve(input, placement, out) }
+}
+
 /// Per-thread buffers of the convolutions.
 #[derive(Default)]
 pub(crate) struct ConvScratch {
     columns: Vec<f32>,
     winograd: WinogradScratch,
     #[cfg(target_arch = "x86_64")]
-    amx: super::amx::AmxScratch,
+    padded: super::amx::Padded,
 }
 
 /// [`PreparedLayer::convolve_rows`] as im2col and one `gemm` per block of pixels.
@@ -213,6 +238,9 @@ pub fn tower_features(network: &MatchingNetwork, image: &GreyImage) -> FeatureMa
 pub(crate) struct StripScratch {
     maps: [FeatureMap; 2],
     conv: ConvScratch,
+    /// Hidden layers' outputs in bfloat16 between two layers on tiles, in turn.
+    #[cfg(target_arch = "x86_64")]
+    padded: [super::amx::Padded; 2],
 }
 
 /// A network's tower with its layers prepared once, to run over the strips of one or
@@ -346,10 +374,53 @@ fn strip_features(
         return;
     }
     let needed = |after: usize| rows.start.saturating_sub(after)..(rows.end + after).min(h);
-    // The image row of the current input's first row.
+    // The image row of the current f32 input's first row.
     let mut input_first = 0;
+    // Which of the padded buffers holds the current input, when the layer before wrote
+    // it in bfloat16 for the tiles.
+    let mut padded_input: Option<usize> = None;
     for (i, layer) in layers.iter().enumerate() {
         let wanted = needed(layers.len() - 1 - i);
+        let last = i + 1 == layers.len();
+        #[cfg(target_arch = "x86_64")]
+        if let Kernels::Amx(kernels) = &layer.kernels {
+            let [first, second] = &mut scratch.padded;
+            let buffers = [first, second];
+            let k = match padded_input {
+                Some(k) => k,
+                None => {
+                    let input = if i == 0 {
+                        image
+                    } else {
+                        &scratch.maps[(i + 1) % 2]
+                    };
+                    buffers[0].prepare((w, h, layer.layer.inputs), &wanted);
+                    buffers[0].fill_from(input, input_first);
+                    0
+                }
+            };
+            let [a, b] = buffers;
+            let (input, next) = if k == 0 { (a, b) } else { (b, a) };
+            let placement = (layer.layer, kernels.as_slice(), layer.relu);
+            let chained = !last && matches!(layers[i + 1].kernels, Kernels::Amx(_));
+            if chained {
+                next.prepare((w, h, layer.layer.outputs), &needed(layers.len() - 2 - i));
+                convolve_on_tiles(input, placement, super::amx::Destination::Padded(next));
+                padded_input = Some(1 - k);
+                continue;
+            }
+            let values = if last {
+                &mut out[..]
+            } else {
+                let map = &mut scratch.maps[i % 2];
+                map.data.resize(wanted.len() * w * layer.layer.outputs, 0.0);
+                (map.width, map.height, map.channels) = (w, wanted.len(), layer.layer.outputs);
+                &mut map.data[..]
+            };
+            convolve_on_tiles(input, placement, super::amx::Destination::Values(values));
+            (input_first, padded_input) = (wanted.start, None);
+            continue;
+        }
         let local = wanted.start - input_first..wanted.end - input_first;
         let [even, odd] = &mut scratch.maps;
         let (previous, next) = if i % 2 == 0 {
@@ -358,7 +429,7 @@ fn strip_features(
             (&*even, odd)
         };
         let input = if i == 0 { image } else { previous };
-        if i + 1 == layers.len() {
+        if last {
             layer.convolve_rows(input, local, out, &mut scratch.conv);
         } else {
             let channels = layer.layer.outputs;
@@ -483,7 +554,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn tile_rows_match_the_direct_convolution_of_the_rounded_values() {
-        use crate::stereo::amx;
+        use crate::stereo::amx::{self, Destination, Padded};
         let round = |v: &[f32]| -> Vec<f32> {
             v.iter()
                 .map(|&x| f32::from_bits((amx::to_bf16(x) as u32) << 16))
@@ -502,6 +573,9 @@ mod tests {
             };
             let kernels = amx::pack_kernels(&layer);
             for rows in [0..h, 1..h - 1] {
+                let mut padded = Padded::default();
+                padded.prepare((w, h, cin), &rows);
+                padded.fill_from(&input, 0);
                 for relu in [false, true] {
                     let len = rows.len() * w * cout;
                     let (mut exact, mut rounded, mut tiles) =
@@ -525,14 +599,7 @@ mod tests {
                         &mut columns,
                     );
                     let placement = (&layer, kernels.as_slice(), relu);
-                    let mut scratch = amx::AmxScratch::default();
-                    amx::convolve_rows_portable(
-                        &input,
-                        placement,
-                        rows.clone(),
-                        &mut tiles,
-                        &mut scratch,
-                    );
+                    amx::convolve_portable(&padded, placement, Destination::Values(&mut tiles));
                     // The twin is the direct convolution of the rounded values, up to the
                     // order of the f32 sums.
                     let (worst, scale) = worst_difference(&rounded, &tiles);
@@ -546,26 +613,112 @@ mod tests {
                         worst <= 2e-2 * scale.max(1.0),
                         "{w}x{h} {cin}->{cout} rounding: {worst}"
                     );
-                    if crate::cpu::has_amx_bf16() {
+                    // Written as the next layer's input: the same values, rounded, in the
+                    // rows of a layout for one row less either side.
+                    let fast = crate::cpu::has_amx_bf16().then(|| {
                         let mut fast = vec![0f32; len];
                         // SAFETY: the CPU has AMX (checked) and the layer fits.
                         unsafe {
-                            amx::convolve_rows(
-                                &input,
-                                placement,
-                                rows.clone(),
-                                &mut fast,
-                                &mut scratch,
-                            )
+                            amx::convolve(&padded, placement, Destination::Values(&mut fast))
                         };
                         let (worst, scale) = worst_difference(&tiles, &fast);
                         assert!(
                             worst <= 1e-5 * scale.max(1.0),
                             "{w}x{h} {cin}->{cout} tiles: {worst}"
                         );
+                        fast
+                    });
+                    if rows.len() < 3 {
+                        continue;
+                    }
+                    // Written as the next layer's input: the same values, rounded, in the
+                    // rows of a layout for one row less either side.
+                    let inner = rows.start + 1..rows.end - 1;
+                    let mut want = Padded::default();
+                    want.prepare((w, h, cout), &inner);
+                    let mut next = Padded::default();
+                    next.prepare((w, h, cout), &inner);
+                    amx::convolve_portable(&padded, placement, Destination::Padded(&mut next));
+                    let above = |data| FeatureMap {
+                        width: w,
+                        height: rows.len(),
+                        channels: cout,
+                        data,
+                    };
+                    want.fill_from(&above(tiles), rows.start);
+                    assert!(next == want, "{w}x{h} {cin}->{cout} as the next input");
+                    if let Some(fast) = fast {
+                        next.prepare((w, h, cout), &inner);
+                        // SAFETY: as above.
+                        unsafe {
+                            amx::convolve(&padded, placement, Destination::Padded(&mut next))
+                        };
+                        want.fill_from(&above(fast), rows.start);
+                        assert!(
+                            next == want,
+                            "{w}x{h} {cin}->{cout} tiles as the next input"
+                        );
                     }
                 }
             }
+        }
+    }
+
+    /// The tower with its wide layers on tiles (the portable twin where the CPU has no
+    /// AMX), chained in bfloat16, against the same tower in f32.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn towers_on_tiles_give_the_f32_features_of_any_strips() {
+        let network = MatchingNetwork::default_fast().expect("built-in network");
+        let (w, h) = (37, 29);
+        let image = GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: noise(w * h, 6),
+        };
+        let depth = network.conv.len();
+        let tower = |tiles: bool| Tower {
+            layers: (network.conv.iter().enumerate())
+                .map(|(i, layer)| {
+                    let relu = i + 1 < depth;
+                    if tiles && crate::stereo::amx::fits(layer) {
+                        PreparedLayer::on_tiles(layer, relu)
+                    } else {
+                        PreparedLayer::without_tiles(layer, relu)
+                    }
+                })
+                .collect(),
+            features: 64,
+            normalise: true,
+        };
+        let (f32_tower, tile_tower) = (tower(false), tower(true));
+        let input = Tower::input(&image);
+        let features = |tower: &Tower, strip_rows: usize| {
+            let mut scratch = StripScratch::default();
+            let mut all = Vec::new();
+            for first in (0..h).step_by(strip_rows) {
+                let mut strip = Vec::new();
+                tower.strip(
+                    &input,
+                    first..(first + strip_rows).min(h),
+                    &mut strip,
+                    &mut scratch,
+                );
+                all.extend(strip);
+            }
+            all
+        };
+        let want = features(&f32_tower, h);
+        let whole = features(&tile_tower, h);
+        // Unit vectors: bfloat16 rounding moves them by a few thousandths.
+        let (worst, _) = worst_difference(&want, &whole);
+        assert!(worst <= 0.03, "tiles against f32: worst {worst}");
+        for strip_rows in [1, 4, 7] {
+            assert!(
+                features(&tile_tower, strip_rows) == whole,
+                "strips of {strip_rows} rows"
+            );
         }
     }
 
