@@ -142,6 +142,12 @@ impl Padded {
         &mut self.data[j * row_values + self.channels..][..self.width * self.channels]
     }
 
+    /// The whole layout, padding included.
+    #[cfg(test)]
+    pub(crate) fn values(&self) -> &[u16] {
+        &self.data
+    }
+
     /// Rounds the image's rows from `input`, whose row 0 is image row `input_first` and
     /// which holds every image row of the layout.
     pub(crate) fn fill_from(&mut self, input: &FeatureMap, input_first: usize) {
@@ -162,6 +168,63 @@ impl Padded {
 /// holds, if inside an image `height` rows high.
 fn image_row(first: usize, height: usize, j: usize) -> Option<usize> {
     (first + j).checked_sub(1).filter(|&y| y < height)
+}
+
+/// The tower's first layer (one input channel) straight into the next layer's padded
+/// input: each pixel the sum of its nine taps times the kernel's columns, plus bias,
+/// optionally rectified, rounded to bfloat16, for every image row of `out`'s layout.
+/// `input` is the whole image (rows and columns outside it read as zeros). Vectorised
+/// for AVX-512 where the CPU has it, the same code otherwise.
+pub(crate) fn first_layer_into(
+    input: &FeatureMap,
+    placement: (&ConvLayer, bool),
+    out: &mut Padded,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has the features the function is compiled for.
+        return unsafe { first_layer_avx512(input, placement, out) };
+    }
+    first_layer_body(input, placement, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn first_layer_avx512(input: &FeatureMap, placement: (&ConvLayer, bool), out: &mut Padded) {
+    first_layer_body(input, placement, out)
+}
+
+#[inline(always)]
+fn first_layer_body(input: &FeatureMap, (layer, relu): (&ConvLayer, bool), out: &mut Padded) {
+    let (w, h, cout) = (input.width, input.height, layer.outputs);
+    assert!(layer.inputs == 1 && input.channels == 1 && layer.weight.len() == TAPS * cout);
+    assert!(out.width == w && out.height == h && out.channels == cout);
+    let mut sums = vec![0f32; cout];
+    for j in 0..out.rows + 2 {
+        let Some(y) = out.image_row(j) else { continue };
+        let pixels = out.pixels_mut(y);
+        for (x, dst) in pixels.chunks_exact_mut(cout).enumerate() {
+            sums.fill(0.0);
+            for tap in 0..TAPS {
+                let (yy, xx) = (
+                    (y + tap / KERNEL).wrapping_sub(1),
+                    (x + tap % KERNEL).wrapping_sub(1),
+                );
+                if yy >= h || xx >= w {
+                    continue;
+                }
+                let v = input.data[yy * w + xx];
+                let weights = &layer.weight[tap * cout..][..cout];
+                for (s, &k) in sums.iter_mut().zip(weights) {
+                    *s = v.mul_add(k, *s);
+                }
+            }
+            for ((d, &s), &b) in dst.iter_mut().zip(&sums).zip(&layer.bias) {
+                let v = s + b;
+                *d = to_bf16(if relu { v.max(0.0) } else { v });
+            }
+        }
+    }
 }
 
 /// Where a tile convolution's output rows go.

@@ -284,22 +284,32 @@ pub(crate) fn aggregate(
         .filter(|d| d.1 == 0)
         .map(|d| d.0)
         .collect();
-    if !horizontal.is_empty() {
-        aggregate_along_rows(volume, left, right, params, &horizontal, &mut sum);
-    }
     let vertical: Vec<i64> = directions
         .iter()
         .filter(|d| d.0 == 0 && d.1 != 0)
         .map(|d| d.1)
         .collect();
-    if !vertical.is_empty() {
-        aggregate_along_columns(volume, left, right, params, &vertical, &mut sum);
-    }
-    for &direction in directions.iter().filter(|d| d.0 != 0 && d.1 != 0) {
-        aggregate_across_rows(volume, left, right, params, direction, &mut sum);
-    }
+    let diagonal: Vec<(i64, i64)> = directions
+        .iter()
+        .copied()
+        .filter(|d| d.0 != 0 && d.1 != 0)
+        .collect();
+    // The pass that runs last divides the sums by the number of paths as it leaves each
+    // part of them, instead of a pass of its own over the whole volume.
     let n = directions.len() as f32;
-    sum.par_iter_mut().for_each(|s| *s /= n);
+    let last = |is_last: bool| is_last.then_some(n);
+    if !horizontal.is_empty() {
+        let finish = last(vertical.is_empty() && diagonal.is_empty());
+        aggregate_along_rows(volume, left, right, params, &horizontal, &mut sum, finish);
+    }
+    if !vertical.is_empty() {
+        let finish = last(diagonal.is_empty());
+        aggregate_along_columns(volume, left, right, params, &vertical, &mut sum, finish);
+    }
+    for (i, &direction) in diagonal.iter().enumerate() {
+        let finish = last(i + 1 == diagonal.len());
+        aggregate_across_rows(volume, left, right, params, direction, &mut sum, finish);
+    }
     CostVolume {
         width: w,
         height: h,
@@ -317,6 +327,7 @@ fn aggregate_along_rows(
     params: &SgmParameters,
     dxs: &[i64],
     sum: &mut [f32],
+    finish: Option<f32>,
 ) {
     let (w, dm) = (volume.width, volume.count());
     let min_disp = volume.range.min as i64;
@@ -351,6 +362,9 @@ fn aggregate_along_rows(
                     std::mem::swap(previous, current);
                 }
             }
+            if let Some(n) = finish {
+                row.iter_mut().for_each(|s| *s /= n);
+            }
         },
     );
 }
@@ -368,6 +382,7 @@ fn aggregate_along_columns(
     params: &SgmParameters,
     dys: &[i64],
     sum: &mut [f32],
+    finish: Option<f32>,
 ) {
     let (w, h, dm) = (volume.width, volume.height, volume.count());
     let min_disp = volume.range.min as i64;
@@ -399,7 +414,8 @@ fn aggregate_along_columns(
             let mut penalties = RowPenalties::new(w, dm);
             let mut previous = vec![PathCosts::new(dm); xs.len()];
             let mut current = previous.clone();
-            for (dy, left_edges, right_edges) in &edges {
+            for (direction, (dy, left_edges, right_edges)) in edges.iter().enumerate() {
+                let finish = finish.filter(|_| direction + 1 == edges.len());
                 for i in 0..h {
                     let y = if *dy > 0 { i } else { h - 1 - i };
                     let row_edges = &right_edges[y * w..(y + 1) * w];
@@ -419,6 +435,9 @@ fn aggregate_along_columns(
                             path.step(&previous[j], costs, step, out);
                         }
                     }
+                    if let Some(n) = finish {
+                        out_row.iter_mut().for_each(|s| *s /= n);
+                    }
                     std::mem::swap(&mut previous, &mut current);
                 }
             }
@@ -434,6 +453,7 @@ fn aggregate_across_rows(
     params: &SgmParameters,
     (dx, dy): (i64, i64),
     sum: &mut [f32],
+    finish: Option<f32>,
 ) {
     const PIXELS_PER_TASK: usize = 32;
     let (w, h, dm) = (volume.width, volume.height, volume.count());
@@ -468,6 +488,9 @@ fn aggregate_across_rows(
                         let step = penalties.at(x, left_edges[y * w + x]);
                         current.step(&previous_row[px as usize], costs, step, out);
                     }
+                }
+                if let Some(n) = finish {
+                    sum_block.iter_mut().for_each(|s| *s /= n);
                 }
             });
         std::mem::swap(&mut previous_row, &mut current_row);

@@ -383,6 +383,16 @@ fn strip_features(
         let wanted = needed(layers.len() - 1 - i);
         let last = i + 1 == layers.len();
         #[cfg(target_arch = "x86_64")]
+        if i == 0 && layer.layer.inputs == 1 && !last {
+            if let Kernels::Amx(_) = layers[1].kernels {
+                let next = &mut scratch.padded[0];
+                next.prepare((w, h, layer.layer.outputs), &needed(layers.len() - 2));
+                super::amx::first_layer_into(image, (layer.layer, layer.relu), next);
+                padded_input = Some(0);
+                continue;
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
         if let Kernels::Amx(kernels) = &layer.kernels {
             let [first, second] = &mut scratch.padded;
             let buffers = [first, second];
@@ -659,6 +669,50 @@ mod tests {
                             "{w}x{h} {cin}->{cout} tiles as the next input"
                         );
                     }
+                }
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_first_layer_into_the_tiles_input_is_the_rounded_direct_convolution() {
+        use crate::stereo::amx::{first_layer_into, Padded};
+        for (w, h, rows) in [(37, 23, 0..23), (37, 23, 5..9), (1, 4, 1..3)] {
+            let (input, layer) = random_convolution((w, h, 1, 64), 9);
+            for relu in [false, true] {
+                // The layout of the next layer's input for `inner` holds `rows`.
+                let inner = rows.clone();
+                let mut got = Padded::default();
+                got.prepare((w, h, 64), &inner);
+                first_layer_into(&input, (&layer, relu), &mut got);
+                let covered = inner.start.saturating_sub(1)..(inner.end + 1).min(h);
+                let mut direct = vec![0f32; covered.len() * w * 64];
+                let mut columns = Vec::new();
+                convolve_direct_rows(
+                    &input,
+                    &layer,
+                    relu,
+                    covered.clone(),
+                    &mut direct,
+                    &mut columns,
+                );
+                let map = FeatureMap {
+                    width: w,
+                    height: covered.len(),
+                    channels: 64,
+                    data: direct,
+                };
+                let mut want = Padded::default();
+                want.prepare((w, h, 64), &inner);
+                want.fill_from(&map, covered.start);
+                // Equal, or a bfloat16 step apart where the f32 sums' order differs.
+                let bits = |p: &Padded| p.values().to_vec();
+                for (a, b) in bits(&got).iter().zip(&bits(&want)) {
+                    assert!(
+                        a.abs_diff(*b) <= 1,
+                        "{w}x{h} rows {rows:?}: {a:#x} against {b:#x}"
+                    );
                 }
             }
         }
