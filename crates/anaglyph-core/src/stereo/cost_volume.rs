@@ -54,9 +54,7 @@ impl CostVolume {
     /// (a volume of the same size and range).
     pub fn keep_lower(&mut self, other: &CostVolume) {
         debug_assert_eq!(self.data.len(), other.data.len());
-        for (a, b) in self.data.iter_mut().zip(&other.data) {
-            *a = a.min(*b);
-        }
+        keep_lower(&mut self.data, &other.data);
     }
 
     /// The index of a whole disparity `d` (None outside the range or not finite).
@@ -64,6 +62,14 @@ impl CostVolume {
         self.range
             .contains(d)
             .then(|| (d as i64 - self.range.min as i64) as usize)
+    }
+}
+
+/// The lower of `costs` and `other` at each entry, into `costs` ([`CostVolume::keep_lower`]
+/// of any part of two volumes).
+pub(crate) fn keep_lower(costs: &mut [f32], other: &[f32]) {
+    for (a, b) in costs.iter_mut().zip(other) {
+        *a = a.min(*b);
     }
 }
 

@@ -5,7 +5,7 @@
 //! [`CostVolume`] in [0, 1] for the refinement chain.
 
 use super::contrast::negated;
-use super::cost_volume::{matched_indices, right_column};
+use super::cost_volume::{keep_lower, matched_indices, right_column};
 use super::network::MatchingNetwork;
 use super::tower::{tower_features, FeatureMap, StripScratch, Tower, STRIP_ROWS};
 use super::{CostVolume, DisparityRange, GreyImage};
@@ -151,9 +151,7 @@ fn streamed_cosine_costs(
                         } else {
                             other.resize(w * n, CostVolume::INVALID);
                             cosine_row(lr, rr, c, range, other, products);
-                            row.iter_mut()
-                                .zip(&*other)
-                                .for_each(|(a, &b)| *a = a.min(b));
+                            keep_lower(row, other);
                         }
                     }
                 }

@@ -127,7 +127,6 @@ impl<'a> PreparedLayer<'a> {
         scratch: &mut ConvScratch,
     ) {
         match &self.kernels {
-            // SAFETY: `new` chose AMX only where the CPU has it and the layer fits.
             #[cfg(target_arch = "x86_64")]
             Kernels::Amx(kernels) => {
                 let shape = (input.width, input.height, input.channels);
@@ -422,13 +421,14 @@ fn strip_features(
                 padded_input = Some(1 - k);
                 continue;
             }
-            let values = if last {
-                &mut out[..]
-            } else {
-                let map = &mut scratch.maps[i % 2];
-                map.data.resize(wanted.len() * w * layer.layer.outputs, 0.0);
-                (map.width, map.height, map.channels) = (w, wanted.len(), layer.layer.outputs);
-                &mut map.data[..]
+            let values = match last {
+                true => &mut out[..],
+                false => output_map(
+                    &mut scratch.maps[i % 2],
+                    w,
+                    wanted.len(),
+                    layer.layer.outputs,
+                ),
             };
             convolve_on_tiles(input, placement, super::amx::Destination::Values(values));
             (input_first, padded_input) = (wanted.start, None);
@@ -445,13 +445,19 @@ fn strip_features(
         if last {
             layer.convolve_rows(input, local, out, &mut scratch.conv);
         } else {
-            let channels = layer.layer.outputs;
-            next.data.resize(wanted.len() * w * channels, 0.0);
-            layer.convolve_rows(input, local, &mut next.data, &mut scratch.conv);
-            (next.width, next.height, next.channels) = (w, wanted.len(), channels);
+            let values = output_map(next, w, wanted.len(), layer.layer.outputs);
+            layer.convolve_rows(input, local, values, &mut scratch.conv);
             input_first = wanted.start;
         }
     }
+}
+
+/// `map` laid out for `rows` rows of a `width`-pixel strip with `channels` values per
+/// pixel, its values for a layer to write.
+fn output_map(map: &mut FeatureMap, width: usize, rows: usize, channels: usize) -> &mut [f32] {
+    map.data.resize(rows * width * channels, 0.0);
+    (map.width, map.height, map.channels) = (width, rows, channels);
+    &mut map.data
 }
 
 /// Scales a feature vector to unit length (a zero vector stays zero).
@@ -478,6 +484,16 @@ mod tests {
                 ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
             })
             .collect()
+    }
+
+    /// A `w × h` grey image of noise seeded `seed`.
+    fn noise_image(w: usize, h: usize, seed: u64) -> GreyImage {
+        GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: noise(w * h, seed),
+        }
     }
 
     /// A `w × h` map of `cin` channels and a 3×3 layer from `cin` to `cout` channels, of
@@ -728,12 +744,7 @@ mod tests {
     fn towers_on_tiles_give_the_f32_features_of_any_strips() {
         let network = MatchingNetwork::default_fast().expect("built-in network");
         let (w, h) = (37, 29);
-        let image = GreyImage {
-            channels: 1,
-            width: w,
-            height: h,
-            data: noise(w * h, 6),
-        };
+        let image = noise_image(w, h, 6);
         let depth = network.conv.len();
         // The layers `on` placed on tiles where they fit.
         let tower = |on: &dyn Fn(usize) -> bool| Tower {
@@ -801,12 +812,7 @@ mod tests {
     fn strips_give_the_features_of_the_whole_image() {
         let network = MatchingNetwork::default_fast().expect("built-in network");
         let (w, h) = (37, 29);
-        let image = GreyImage {
-            channels: 1,
-            width: w,
-            height: h,
-            data: noise(w * h, 4),
-        };
+        let image = noise_image(w, h, 4);
         let whole = tower_features_in_strips(&network, &image, h);
         for strip_rows in [1, 5, 8] {
             let strips = tower_features_in_strips(&network, &image, strip_rows);
