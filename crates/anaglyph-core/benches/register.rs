@@ -59,6 +59,7 @@ fn registration(c: &mut Criterion) {
         cost: MatchingCost::Learned(&network),
         range: DisparityRange::up_to(D).unwrap(),
         coarse_to_fine: CoarseToFine::Off,
+        previous: None,
     };
     let once = multi_baseline_disparities(&images, &geometry, &settings, &|_, _| {})
         .expect("registration");

@@ -518,6 +518,7 @@ fn the_search_range_is_found_from_the_captures() {
             cost: MatchingCost::Learned(&network),
             range: DisparityRange::up_to(64).unwrap(), // not read: the range is estimated
             coarse_to_fine: CoarseToFine::Auto,
+            previous: None,
         },
     )
     .unwrap();
@@ -943,4 +944,78 @@ fn a_run_written_view_by_view_equals_the_field_written_at_the_end() {
     let (a, b) = (at_end.inventory().unwrap(), streamed.inventory().unwrap());
     assert_eq!(a.len(), 2 * (2 + 2 + 2 + 1 + 3), "{a:?}");
     assert_eq!(a, b);
+}
+
+/// Registration around a previous frame's maps (a frame of a sequence) keeps every view as
+/// close to the truth as the full search, searching a fraction of the range per tile; and
+/// where the previous maps are far off, the winners piling up at the bands' ends send
+/// the tiles back to the whole range, which finds the surfaces again.
+#[test]
+fn registration_around_previous_maps_keeps_the_full_search_quality() {
+    use anaglyph_core::register::{register_views, PreviousMaps, ViewImage};
+    let (rig, simulation) = tabletop();
+    let captures = ArrayCaptures::from_simulation(&simulation);
+    let network = MatchingNetwork::default_fast().unwrap();
+    let images: Vec<ViewImage> = captures
+        .grey_images()
+        .into_iter()
+        .map(|image| ViewImage {
+            image,
+            matching: Vec::new(),
+            measured: None,
+        })
+        .collect();
+    let geometry = ArrayGeometry::of_rig(&rig);
+    let truth = simulation.disparity_maps();
+    // Twice the scene's disparities (0 to 11.4 px), as an estimated range may be.
+    let range = DisparityRange::up_to(32).unwrap();
+    let register = |previous: Option<PreviousMaps<'_>>| {
+        let settings = RegistrationSettings {
+            mode: RegistrationMode::MultiBaseline,
+            cost: MatchingCost::Learned(&network),
+            range,
+            coarse_to_fine: CoarseToFine::Off,
+            previous,
+        };
+        register_views(&images, &geometry, &settings, &|_, _| {}).unwrap()
+    };
+    let bad_1 = |maps: &[DisparityMap]| {
+        (0..maps.len())
+            .map(|i| {
+                let seen = seen_by_all_views(&truth, &geometry, i);
+                100.0 * bad_pixel_share(&maps[i].data, &truth[i].data, Some(&seen), 1.0)
+            })
+            .sum::<f64>()
+            / maps.len() as f64
+    };
+    let full = register(None);
+    assert_eq!(full.banded, None);
+    let around = |maps: &[DisparityMap]| register(Some(PreviousMaps { maps, margin: 3.0 }));
+    let same = around(&full.disparities);
+    let off: Vec<DisparityMap> = full
+        .disparities
+        .iter()
+        .map(|m| DisparityMap {
+            data: m.data.iter().map(|d| d + 8.0).collect(),
+            ..m.clone()
+        })
+        .collect();
+    let far = around(&off);
+    let (b_full, b_same, b_far) = (
+        bad_1(&full.disparities),
+        bad_1(&same.disparities),
+        bad_1(&far.disparities),
+    );
+    let (banded_same, banded_far) = (same.banded.unwrap(), far.banded.unwrap());
+    eprintln!(
+        "bad-1 %: full search {b_full:.2}, around its own maps {b_same:.2} ({banded_same:?}), \
+         around maps 8 px off {b_far:.2} ({banded_far:?})"
+    );
+    assert!(
+        banded_same.mean_band < 0.8 * range.count() as f64,
+        "{banded_same:?}"
+    );
+    assert!(b_same < b_full + 1.0, "{b_same:.2} against {b_full:.2}");
+    assert!(banded_far.whole_range > 0, "{banded_far:?}");
+    assert!(b_far < b_full + 1.5, "{b_far:.2} against {b_full:.2}");
 }

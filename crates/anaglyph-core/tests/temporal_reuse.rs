@@ -65,6 +65,10 @@ fn reused_frames_keep_their_quality_and_say_what_they_reused() {
                 "the range is carried, not estimated again"
             );
             assert!(narrowed.count() > 4, "{narrowed:?}");
+            // Registration searched each tile around the previous frame's maps.
+            let banded = report.banded.expect("a banded search");
+            assert!(banded.tiles >= 8, "{banded:?}");
+            assert!(banded.mean_band <= narrowed.count() as f64, "{banded:?}");
             assert_eq!(report.priors_carried + report.priors_learned, 8);
             assert!(report.priors_carried >= 6, "{report:?}");
             // The wall and the chart stand still: their pixels keep their spectra (48 %).
@@ -102,6 +106,7 @@ fn a_cut_reuses_nothing() {
     assert!(report.previous && report.cut, "{report:?}");
     assert!(report.correlation.unwrap() < 0.5, "{report:?}");
     assert_eq!(report.narrowed_range, None);
+    assert_eq!(report.banded, None);
     assert_eq!(report.priors_carried, 0);
     let alone = reconstruct(&rig, &other, &settings, &|_, _, _| {}).unwrap();
     assert!(

@@ -78,6 +78,8 @@ def test_frames_reuse_what_the_previous_frame_learned(clip):
     assert second["correlation"] > 0.9
     assert second["priors_carried"] + second["priors_learned"] == 8
     assert second["narrowed_range"] is not None or second["range_fallback"] is False
+    # Registration searched each tile around the previous frame's maps.
+    assert second["banded"]["tiles"] > 0 and first["banded"] is None
     # The same scene again: the reused frame's cube differs from the frame alone no more
     # than two frames alone differ (their noise).
     alone = anaglyph.reconstruct_frames(rig, frames, whites=whites, reuse=False, progress=False)

@@ -6,7 +6,7 @@
 //! column step, NaN where unknown), the search range when it was estimated, the common
 //! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
 
-use super::reuse::{at_narrowed_ends, Reuse, ReuseReport};
+use super::reuse::{at_narrowed_ends, previous_maps, Reuse, ReuseReport};
 use super::{
     ArrayCaptures, CalibratedArray, Disparities, DisparitySearch, PipelineSettings, RunLog, Stage,
 };
@@ -14,7 +14,7 @@ use crate::disparity::{DisparityConvention, DisparityMap, DisparityRange};
 use crate::register::{
     common_signal_images, common_signals, estimate_search_range, neighbour_agreement,
     pair_agreements, register_views, ArrayGeometry, CommonSignal, MatchingImage, PairAgreement,
-    RegistrationMode, SearchRange, ViewImage, COMMON_SIGNALS,
+    RegistrationMode, RegistrationSettings, SearchRange, ViewImage, COMMON_SIGNALS,
 };
 use crate::rig::Rig;
 use crate::stereo::GreyImage;
@@ -117,15 +117,21 @@ fn estimate_maps(
         }
     };
     let narrowed = reuse.and_then(|r| r.carry.narrowed(whole));
-    let register = |range: DisparityRange| {
+    // Each tile searches around the previous frame's maps.
+    let previous = reuse.map(|r| previous_maps(r.carry, whole));
+    let register = |range: DisparityRange, previous| {
         register_views(
             &images,
             geometry,
-            &settings.registration_over(range),
+            &RegistrationSettings {
+                previous,
+                ..settings.registration_over(range)
+            },
             &|done, total| progress(Stage::Registration, done, total),
         )
     };
-    let mut registration = register(narrowed.unwrap_or(whole))?;
+    let mut registration = register(narrowed.unwrap_or(whole), previous)?;
+    let mut banded = previous.is_some();
     if let Some(narrowed) = narrowed {
         report.narrowed_range = Some(narrowed);
         if at_narrowed_ends(&registration.disparities, narrowed, whole) {
@@ -134,12 +140,17 @@ fn estimate_maps(
                 log.timings
                     .push((format!("registration (narrowed): {name}"), *seconds));
             }
-            registration = register(whole)?;
+            // The previous maps missed the surfaces: registered as a frame alone is.
+            registration = register(whole, None)?;
+            banded = false;
         }
     }
     for (name, seconds) in &registration.timings {
         log.timings
             .push((format!("registration: {name}"), *seconds));
+    }
+    if banded {
+        report.banded = registration.banded;
     }
     Ok(RegisteredArray {
         disparities: registration.disparities,

@@ -35,6 +35,7 @@ use super::view_reuse::{dilated, moved_pixels, CameraChanges, CarriedView, WARP_
 use crate::disparity::{DisparityMap, DisparityRange};
 use crate::image::GreyImage;
 use crate::image::Image;
+use crate::register::{BandedSearch, PreviousMaps};
 use serde::Serialize;
 
 /// Side of the square blocks whose means the cut detection correlates, pixels.
@@ -100,6 +101,9 @@ pub struct ReuseReport {
     /// Pixels (summed over views) whose measurements had not changed and kept the
     /// previous frame's spectra (the guided filter ran on every pixel).
     pub reused_pixels: usize,
+    /// How registration's tiles searched around the previous frame's maps (None: over the
+    /// whole range, as a single frame does).
+    pub banded: Option<BandedSearch>,
 }
 
 impl ReuseReport {
@@ -114,6 +118,7 @@ impl ReuseReport {
             priors_carried: 0,
             priors_learned: 0,
             reused_pixels: 0,
+            banded: None,
         }
     }
 }
@@ -195,12 +200,27 @@ impl FrameCarry {
         let high_at = ((values.len() - 1) as f64 * (1.0 - OUTLIER_QUANTILE)) as usize;
         let low = *values.select_nth_unstable_by(low_at, f32::total_cmp).1;
         let high = *values.select_nth_unstable_by(high_at, f32::total_cmp).1;
-        let width = (whole.max - whole.min) as f64;
-        let margin = ((width * MARGIN_FRACTION).ceil() as i32).max(MIN_MARGIN);
+        let margin = motion_margin(whole);
         let min = (low.floor() as i32 - margin).max(whole.min);
         let max = (high.ceil() as i32 + margin + 1).min(whole.max);
         let narrowed = DisparityRange::new(min, max).ok()?;
         (narrowed.count() < whole.count()).then_some(narrowed)
+    }
+}
+
+/// How far beyond the previous frame's disparities a frame searches (for motion in
+/// depth): [`MARGIN_FRACTION`] of the whole range's width, at least [`MIN_MARGIN`] px.
+pub(super) fn motion_margin(whole: DisparityRange) -> i32 {
+    let width = (whole.max - whole.min) as f64;
+    ((width * MARGIN_FRACTION).ceil() as i32).max(MIN_MARGIN)
+}
+
+/// The previous frame's maps that registration searches around, each tile over the
+/// disparities near it ± the [`motion_margin`] ([`PreviousMaps`]).
+pub(super) fn previous_maps(carry: &FrameCarry, whole: DisparityRange) -> PreviousMaps<'_> {
+    PreviousMaps {
+        maps: &carry.maps,
+        margin: motion_margin(whole) as f32,
     }
 }
 

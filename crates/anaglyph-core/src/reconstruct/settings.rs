@@ -194,6 +194,7 @@ impl<'a> PipelineSettings<'a> {
             cost: self.cost,
             range,
             coarse_to_fine: self.coarse_to_fine,
+            previous: None,
         }
     }
 

@@ -120,8 +120,15 @@ impl FeatureProjection {
         self.blocks.len()
     }
 
-    /// Adds image `j`'s projected features to `out` (`pixels × dims`, row-major).
+    /// Adds image `j`'s projected features to `out` (`pixels × dims`, row-major), or
+    /// writes them there for the first image: a product adding to a fresh buffer would
+    /// read its untouched pages first (the kernel's shared zero page), and writing them
+    /// then costs each page a copy-on-write fault and a flush of every core's TLB.
     fn accumulate(&self, j: usize, map: &FeatureMap, out: &mut [f32]) {
+        let accum = match j {
+            0 => faer::Accum::Replace,
+            _ => faer::Accum::Add,
+        };
         let (c, dims) = (self.channels, self.dims);
         let block = &self.blocks[j];
         out.par_chunks_mut(CHUNK_PIXELS * dims)
@@ -130,7 +137,7 @@ impl FeatureProjection {
                 let rows = src.len() / c;
                 faer::linalg::matmul::matmul(
                     faer::MatMut::from_row_major_slice_mut(dst, rows, dims),
-                    faer::Accum::Add,
+                    accum,
                     faer::MatRef::from_row_major_slice(src, rows, c),
                     faer::MatRef::from_row_major_slice(block, c, dims),
                     1.0f32,

@@ -110,6 +110,35 @@ pub struct RegistrationSettings<'a> {
     /// Whether multi-baseline registration goes coarse to fine (pairwise registration
     /// does not read it).
     pub coarse_to_fine: CoarseToFine,
+    /// A frame of a sequence: the previous frame's maps, which multi-baseline
+    /// registration searches around instead of over the whole range (pairwise
+    /// registration does not read it).
+    pub previous: Option<PreviousMaps<'a>>,
+}
+
+/// The previous frame's maps, which the next frame of a sequence searches around (temporal
+/// reuse): each tile of a view over the disparities its previous map held near it, widened
+/// by `margin` for motion in depth (the whole range where the previous map was unsure
+/// there, or where the winners pile up at an end of the band).
+#[derive(Debug, Clone, Copy)]
+pub struct PreviousMaps<'a> {
+    /// Per view, the previous frame's map (the views' size and column-step convention).
+    pub maps: &'a [DisparityMap],
+    /// Disparities a tile's band reaches beyond the previous ones near it, px.
+    pub margin: f32,
+}
+
+/// How the tiles of a banded search went (coarse to fine, or around a previous frame's
+/// maps), summed over views.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct BandedSearch {
+    /// Tiles searched (all views).
+    pub tiles: usize,
+    /// Of them, those searched over the whole range: the guide was unsure there, or the
+    /// winners piled up at an end of the band.
+    pub whole_range: usize,
+    /// Disparities searched per tile, on average.
+    pub mean_band: f64,
 }
 
 /// Half-size of the window of the subpixel refinement of both registration modes (11×11,
@@ -211,6 +240,9 @@ pub struct Registration {
     /// Per view, the pixels that [`resolve_ambiguous_planes`] moved to the plane of their
     /// ambiguous region (None: the mode has no such step).
     pub moved_to_planes: Option<Vec<usize>>,
+    /// How a banded search's tiles went (None: every view searched over the whole range
+    /// at once).
+    pub banded: Option<BandedSearch>,
 }
 
 /// Estimates every view's disparity map. `progress(done, total)` is called as views finish.

@@ -167,6 +167,7 @@ pub fn pairwise_disparities(
             ("column pairs".into(), column_seconds),
         ],
         moved_to_planes: None,
+        banded: None,
     })
 }
 
@@ -229,6 +230,7 @@ mod tests {
             cost: crate::stereo::MatchingCost::Census,
             range: crate::stereo::DisparityRange::up_to(4).unwrap(),
             coarse_to_fine: super::super::CoarseToFine::Off,
+            previous: None,
         };
         let error = pairwise_disparities(&images, &geometry, &settings, &|_, _| {})
             .unwrap_err()

@@ -102,6 +102,7 @@ pub fn estimate_search_range(
             range: coarse_range,
             // The estimate is coarse already.
             coarse_to_fine: CoarseToFine::Off,
+            previous: None,
             ..*settings
         },
         &|_, _| {},

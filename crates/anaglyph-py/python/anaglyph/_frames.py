@@ -34,7 +34,8 @@ class FrameReport:
     call), ``store_seconds`` spent writing it, whether it was ``skipped`` (already in the
     store), its ``warnings`` and what it reused of the previous frame (``reuse``, the manifest's
     ``temporal_reuse``: ``cut``, ``narrowed_range``, ``range_fallback``,
-    ``priors_carried``, ...; None when skipped)."""
+    ``banded`` (registration's tiles searched around the previous maps), ``priors_carried``,
+    ...; None when skipped)."""
 
     frame: int
     seconds: float

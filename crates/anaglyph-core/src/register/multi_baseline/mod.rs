@@ -52,8 +52,9 @@ use super::compact_features::{to_bf16, CompactFeatures};
 use super::feature_projection::FeatureProjection;
 use super::{
     apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
-    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, CoarseToFine,
-    RegionPlane, Registration, RegistrationSettings, ViewImage, SUBPIXEL_WINDOW_RADIUS,
+    smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, BandedSearch,
+    CoarseToFine, PreviousMaps, RegionPlane, Registration, RegistrationSettings, ViewImage,
+    SUBPIXEL_WINDOW_RADIUS,
 };
 use crate::disparity::{DisparityConvention, DisparityMap};
 use crate::stereo::{
@@ -83,7 +84,18 @@ pub fn multi_baseline_disparities(
         CoarseToFine::Off => false,
     };
     // The coarse level needs room for the tower's receptive field and two disparities.
-    if coarse_to_fine_here && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE {
+    let large = coarse_to_fine_here && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE;
+    if let Some(previous) = &settings.previous {
+        return around_previous(
+            network,
+            images,
+            geometry,
+            settings,
+            (previous, large),
+            progress,
+        );
+    }
+    if large && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE {
         return coarse_to_fine(network, images, geometry, settings, progress);
     }
     let mut timings = Vec::new();
@@ -146,6 +158,7 @@ fn coarse_to_fine(
     let coarse_settings = RegistrationSettings {
         range: settings.range.scaled(0.5),
         coarse_to_fine: CoarseToFine::Auto,
+        previous: None,
         ..*settings
     };
     let coarse =
@@ -160,45 +173,127 @@ fn coarse_to_fine(
     let features = view_features(network, images, FINE_SIGNALS, Some(FINE_DIMS))?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
-    let guides = BandGuide::of_views(coarse.disparities, geometry);
-    let matched = match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress)?;
-    finish(matched, &costs, settings.range, timings)
+    let guides = BandGuide::of_coarse(coarse.disparities, geometry);
+    let (matched, banded) =
+        match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress)?;
+    let mut registration = finish(matched, &costs, settings.range, timings)?;
+    registration.banded = Some(banded);
+    Ok(registration)
 }
 
-/// A view's coarse map and which of its pixels a neighbouring view's coarse map confirms:
-/// what the fine level's bands come from.
+/// Registration of a frame of a sequence around the previous frame's maps: the features
+/// of one level (those of the fine level where the views are large enough to go coarse to
+/// fine), then every view tile by tile over a band around its previous disparities
+/// ([`BandGuide::band`]; the whole range where they were unsure, or where the winners pile
+/// up at an end of the band), then the subpixel fit and filters of one level. The coarse
+/// level is not needed: the previous frame's maps guide instead.
+fn around_previous(
+    network: &MatchingNetwork,
+    images: &[ViewImage],
+    geometry: &ArrayGeometry,
+    settings: &RegistrationSettings<'_>,
+    (previous, large): (&PreviousMaps<'_>, bool),
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Registration> {
+    let size = (images[0].image.width, images[0].image.height);
+    let guides = BandGuide::of_previous(previous, geometry, size)?;
+    let mut timings = Vec::new();
+    let clock = Instant::now();
+    let features = match large {
+        true => view_features(network, images, FINE_SIGNALS, Some(FINE_DIMS))?,
+        false => view_features(network, images, usize::MAX, None)?,
+    };
+    let costs = PointCosts::new(&features, geometry);
+    timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
+    let (matched, banded) =
+        match_views_in_bands(images, &costs, settings, &guides, &mut timings, progress)?;
+    let mut registration = finish(matched, &costs, settings.range, timings)?;
+    registration.banded = Some(banded);
+    Ok(registration)
+}
+
+/// What the tiles of a banded search search around: a view's coarse map (coarse to fine)
+/// or its map in the previous frame (a frame of a sequence), and which of the map's
+/// pixels a neighbouring view's map confirms.
 struct BandGuide {
     map: DisparityMap,
     confirmed: Vec<bool>,
+    /// Full-resolution pixels per pixel of `map` (2 for a coarse map, 1 for a previous
+    /// frame's).
+    scale: usize,
+    kind: GuideKind,
+}
+
+enum GuideKind {
+    /// The same frame's map at half the resolution.
+    Coarse,
+    /// The previous frame's map at full resolution, with the band's margin for motion in
+    /// depth.
+    Previous { margin: f32 },
 }
 
 impl BandGuide {
     /// Every view's guide from its coarse map (`coarse`, in view order).
-    fn of_views(coarse: Vec<DisparityMap>, geometry: &ArrayGeometry) -> Vec<Self> {
-        let confirmed: Vec<Vec<bool>> = (0..coarse.len())
-            .map(|i| {
-                let checked = confirmed_by_neighbours(&coarse, geometry, i);
-                checked.data.iter().map(|d| d.is_finite()).collect()
-            })
-            .collect();
+    fn of_coarse(coarse: Vec<DisparityMap>, geometry: &ArrayGeometry) -> Vec<Self> {
+        let confirmed = confirmed_pixels(&coarse, geometry);
         coarse
             .into_iter()
             .zip(confirmed)
-            .map(|(map, confirmed)| BandGuide { map, confirmed })
+            .map(|(map, confirmed)| BandGuide {
+                map,
+                confirmed,
+                scale: 2,
+                kind: GuideKind::Coarse,
+            })
             .collect()
     }
 
-    /// The coarse pixel under full-resolution pixel (x, y) (the last coarse row or column
-    /// for a remainder the box average dropped). The coarse level is never empty
-    /// ([`MIN_COARSE_SIDE`]).
-    fn coarse_pixel(&self, x: usize, y: usize) -> (usize, usize) {
-        let (cw, ch) = (self.map.width, self.map.height);
-        ((x / 2).min(cw - 1), (y / 2).min(ch - 1))
+    /// Every view's guide from the previous frame's maps, checked against the views'
+    /// size.
+    fn of_previous(
+        previous: &PreviousMaps<'_>,
+        geometry: &ArrayGeometry,
+        (w, h): (usize, usize),
+    ) -> Result<Vec<Self>> {
+        let maps = previous.maps;
+        if maps.len() != geometry.len() {
+            return Err(Error::Shape {
+                op: "registration around the previous frame's maps: one map per view".into(),
+                got: vec![maps.len()],
+                expected: vec![geometry.len()],
+            });
+        }
+        for map in maps {
+            map.check(w, h, DisparityConvention::ColumnStep)?;
+        }
+        let confirmed = confirmed_pixels(maps, geometry);
+        Ok(maps
+            .iter()
+            .zip(confirmed)
+            .map(|(map, confirmed)| BandGuide {
+                map: map.clone(),
+                confirmed,
+                scale: 1,
+                kind: GuideKind::Previous {
+                    margin: previous.margin,
+                },
+            })
+            .collect())
     }
 
-    /// The disparities the fine level searches over the full-resolution window
-    /// `columns` × `rows`: the upsampled coarse disparities under it ± [`BAND_MARGIN`]
-    /// within `whole`, or all of `whole` where the coarse map is unknown or unsure there.
+    /// The guide's pixel under full-resolution pixel (x, y) (the last row or column of a
+    /// coarse map for a remainder the box average dropped). The coarse level is never
+    /// empty ([`MIN_COARSE_SIDE`]).
+    fn guide_pixel(&self, x: usize, y: usize) -> (usize, usize) {
+        let (cw, ch) = (self.map.width, self.map.height);
+        ((x / self.scale).min(cw - 1), (y / self.scale).min(ch - 1))
+    }
+
+    /// The disparities the tile searches over the full-resolution window `columns` ×
+    /// `rows`, within `whole`: for a coarse guide, the upsampled disparities under the
+    /// window ± [`BAND_MARGIN`] (all of `whole` where one is unknown or too many are
+    /// unsure); for a previous frame's, the confirmed disparities within [`MOTION_REACH`]
+    /// of the window ± its margin (all of `whole` where too many are unsure or unknown).
     fn band(
         &self,
         columns: &Range<usize>,
@@ -206,35 +301,83 @@ impl BandGuide {
         whole: DisparityRange,
     ) -> DisparityRange {
         let cw = self.map.width;
-        let (x0, y0) = self.coarse_pixel(columns.start, rows.start);
-        let (x1, y1) = self.coarse_pixel(columns.end - 1, rows.end - 1);
+        let (margin, (x0, y0), (x1, y1)) = match self.kind {
+            GuideKind::Coarse => (
+                BAND_MARGIN,
+                self.guide_pixel(columns.start, rows.start),
+                self.guide_pixel(columns.end - 1, rows.end - 1),
+            ),
+            GuideKind::Previous { margin, .. } => (
+                margin,
+                (
+                    columns.start.saturating_sub(MOTION_REACH),
+                    rows.start.saturating_sub(MOTION_REACH),
+                ),
+                (
+                    (columns.end - 1 + MOTION_REACH).min(cw - 1),
+                    (rows.end - 1 + MOTION_REACH).min(self.map.height - 1),
+                ),
+            ),
+        };
+        let coarse = matches!(self.kind, GuideKind::Coarse);
+        let scale = self.scale as f32;
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         let (mut unsure, mut total) = (0usize, 0usize);
         for cy in y0..=y1 {
             for cx in x0..=x1 {
                 let i = cy * cw + cx;
-                let d = 2.0 * self.map.data[i];
-                if !d.is_finite() {
-                    return whole;
-                }
-                (lo, hi) = (lo.min(d), hi.max(d));
-                unsure += usize::from(!self.confirmed[i]);
+                let d = scale * self.map.data[i];
                 total += 1;
+                if !d.is_finite() {
+                    match coarse {
+                        true => return whole,
+                        false => {
+                            unsure += 1;
+                            continue;
+                        }
+                    }
+                }
+                unsure += usize::from(!self.confirmed[i]);
+                // A previous frame's unsure disparities are left out of its band (a
+                // mismatch would hold it open); the coarse level's are not.
+                if coarse || self.confirmed[i] {
+                    (lo, hi) = (lo.min(d), hi.max(d));
+                }
             }
         }
-        if unsure as f64 > UNSURE_FRACTION * total as f64 {
+        if unsure as f64 > UNSURE_FRACTION * total as f64 || lo > hi {
             return whole;
         }
-        let min = ((lo - BAND_MARGIN).floor() as i32).max(whole.min);
-        let max = ((hi + BAND_MARGIN).ceil() as i32 + 1).min(whole.max);
+        let min = ((lo - margin).floor() as i32).max(whole.min);
+        let max = ((hi + margin).ceil() as i32 + 1).min(whole.max);
         DisparityRange::new(min, max).unwrap_or(whole)
     }
 
+    /// The guide's disparity (full-resolution pixels) that pixel (x, y)'s costs are
+    /// pulled towards: a coarse guide's where it is known. A previous frame's pulls
+    /// nowhere: on the 3×3 narrow-band array's moving tabletop, pulling the pixels whose
+    /// camera saw nothing move cost up to 0.14 dB a frame (docs/sequence.md).
+    fn pull_target(&self, x: usize, y: usize) -> Option<f32> {
+        if let GuideKind::Previous { .. } = self.kind {
+            return None;
+        }
+        let (cx, cy) = self.guide_pixel(x, y);
+        let g = self.scale as f32 * self.map.data[cy * self.map.width + cx];
+        g.is_finite().then_some(g)
+    }
+
+    /// Whether a tile whose winners pile up at an end of its band searches again over the
+    /// whole range: around a previous frame's maps, a surface may have come closer or gone
+    /// farther than the margin allows (the coarse level has seen this frame's surfaces).
+    fn searches_again_at_ends(&self) -> bool {
+        matches!(self.kind, GuideKind::Previous { .. })
+    }
+
     /// `volume` (of the window `columns` × `rows`) with a cost added to each disparity
-    /// more than [`PULL_FREE`] from the upsampled coarse one: [`PULL`] per pixel, at most
-    /// [`PULL_CAP`]. Where the view has no texture its costs are flat and SGM's short
-    /// paths in a tile would settle anywhere in the band; the coarse level, whose paths
-    /// cross the whole image, decides there instead.
+    /// more than [`PULL_FREE`] from the guide's ([`BandGuide::pull_target`]): [`PULL`]
+    /// per pixel, at most [`PULL_CAP`]. Where the view has no texture its costs are flat
+    /// and SGM's short paths in a tile would settle anywhere in the band; the guide,
+    /// whose paths crossed the whole image, decides there instead.
     fn pulled_towards(
         &self,
         volume: &CostVolume,
@@ -248,11 +391,9 @@ impl BandGuide {
                 columns.start + t % volume.width,
                 rows.start + t / volume.width,
             );
-            let (cx, cy) = self.coarse_pixel(x, y);
-            let g = 2.0 * self.map.data[cy * self.map.width + cx];
-            if !g.is_finite() {
+            let Some(g) = self.pull_target(x, y) else {
                 continue;
-            }
+            };
             for (k, cost) in costs.iter_mut().enumerate() {
                 let off = (volume.range.at(k) - g).abs() - PULL_FREE;
                 if off > 0.0 {
@@ -263,6 +404,24 @@ impl BandGuide {
         pulled
     }
 }
+
+/// Per view, which pixels of its map a neighbouring view's map confirms.
+fn confirmed_pixels(maps: &[DisparityMap], geometry: &ArrayGeometry) -> Vec<Vec<bool>> {
+    (0..maps.len())
+        .map(|i| {
+            let checked = confirmed_by_neighbours(maps, geometry, i);
+            checked.data.iter().map(|d| d.is_finite()).collect()
+        })
+        .collect()
+}
+
+/// Pixels around a tile whose previous disparities its band covers: what moves into the
+/// tile within a frame (lateral motion).
+const MOTION_REACH: usize = 16;
+/// A tile searched around a previous frame's map whose winners lie at an end of its band
+/// (one not at the whole range's end) in more than this fraction of its pixels is
+/// searched again over the whole range.
+const AT_BAND_END_FRACTION: f64 = 0.01;
 
 /// Disparities within this many pixels of the upsampled coarse one cost nothing extra
 /// ([`BandGuide::pulled_towards`]).
@@ -300,6 +459,7 @@ fn finish(
         disparities,
         timings,
         moved_to_planes: Some(moved),
+        banded: None,
     })
 }
 
@@ -368,7 +528,7 @@ fn match_views_in_bands(
     guides: &[BandGuide],
     timings: &mut Vec<(String, f64)>,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<MatchedViews> {
+) -> Result<(MatchedViews, BandedSearch)> {
     let (w, h) = costs.size();
     let chain = MatchSettings::for_cost(&settings.cost, settings.range);
     let tiles: Vec<(Range<usize>, Range<usize>)> = (0..h.div_ceil(TILE))
@@ -401,22 +561,31 @@ fn match_views_in_bands(
             ambiguous: vec![false; w * h],
             median_cost: vec![f32::NAN; w * h],
         };
+        let guide = &guides[i];
         let results: Vec<TileResult> = tiles
             .par_iter()
             .map(|(columns, rows)| -> Result<TileResult> {
                 let (wc, wr) = (widen(columns, w), widen(rows, h));
-                let band = guides[i].band(&wc, &wr, settings.range);
-                let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
-                let guided = guides[i].pulled_towards(&volume, &wc, &wr);
-                let tile_disparity =
-                    winners(&guided, &chain, || guide_image.crop(wc.clone(), wr.clone()))?;
-                Ok(TileResult {
-                    window: (wc, wr),
-                    band,
-                    whole: whole_steps(&volume, &tile_disparity),
-                    ambiguity: Ambiguity::of_volume(&volume),
-                    disparity: tile_disparity,
-                })
+                let search = |band: DisparityRange| -> Result<TileResult> {
+                    let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
+                    let guided = guide.pulled_towards(&volume, &wc, &wr);
+                    let tile_disparity =
+                        winners(&guided, &chain, || guide_image.crop(wc.clone(), wr.clone()))?;
+                    Ok(TileResult {
+                        window: (wc.clone(), wr.clone()),
+                        band,
+                        whole: whole_steps(&volume, &tile_disparity),
+                        ambiguity: Ambiguity::of_volume(&volume),
+                        disparity: tile_disparity,
+                    })
+                };
+                let tile = search(guide.band(&wc, &wr, settings.range))?;
+                match guide.searches_again_at_ends()
+                    && tile.piles_at_band_ends((columns, rows), settings.range)
+                {
+                    true => search(settings.range),
+                    false => Ok(tile),
+                }
             })
             .collect::<Result<_>>()?;
         for ((columns, rows), tile) in tiles.iter().zip(results) {
@@ -441,15 +610,20 @@ fn match_views_in_bands(
         refine_seconds += clock.elapsed().as_secs_f64();
         progress(i + 1, images.len());
     }
-    let count = (tiles.len() * images.len()).max(1);
+    let count = tiles.len() * images.len();
+    let banded = BandedSearch {
+        tiles: count,
+        whole_range: fallbacks,
+        mean_band: searched as f64 / count.max(1) as f64,
+    };
     tracing::info!(
-        "fine level: {:.1} disparities per tile on average (of {}), {fallbacks} of {count} tiles over the whole range",
-        searched as f64 / count as f64,
+        "banded search: {:.1} disparities per tile on average (of {}), {fallbacks} of {count} tiles over the whole range",
+        banded.mean_band,
         settings.range.count()
     );
     timings.push(("multi-view cost + SGM in bands".to_string(), band_seconds));
     timings.push(("subpixel".to_string(), refine_seconds));
-    Ok(matched)
+    Ok((matched, banded))
 }
 
 /// Winner-take-all over `volume` after SGM where the chain has it, its penalties from the
@@ -494,6 +668,33 @@ struct TileResult {
     disparity: Vec<f32>,
     whole: Vec<[f32; 5]>,
     ambiguity: Ambiguity,
+}
+
+impl TileResult {
+    /// Whether more than [`AT_BAND_END_FRACTION`] of the tile's own pixels (`columns` ×
+    /// `rows`, within the window) won at an end of the band that is not an end of `whole`.
+    fn piles_at_band_ends(
+        &self,
+        (columns, rows): (&Range<usize>, &Range<usize>),
+        whole: DisparityRange,
+    ) -> bool {
+        let band = self.band;
+        let low = (band.min > whole.min).then_some(band.min as f32);
+        let high = (band.max < whole.max).then_some((band.max - 1) as f32);
+        if low.is_none() && high.is_none() {
+            return false;
+        }
+        let (wc, wr) = &self.window;
+        let at_ends = rows
+            .clone()
+            .flat_map(|y| columns.clone().map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                let d = self.disparity[(y - wr.start) * wc.len() + x - wc.start];
+                Some(d) == low || Some(d) == high
+            })
+            .count();
+        at_ends as f64 > AT_BAND_END_FRACTION * (columns.len() * rows.len()) as f64
+    }
 }
 
 /// View `i`'s raw map checked against its neighbours', the failures filled
