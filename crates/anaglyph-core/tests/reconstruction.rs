@@ -990,7 +990,13 @@ fn registration_around_previous_maps_keeps_the_full_search_quality() {
     };
     let full = register(None);
     assert_eq!(full.banded, None);
-    let around = |maps: &[DisparityMap]| register(Some(PreviousMaps { maps, margin: 3.0 }));
+    let around = |maps: &[DisparityMap]| {
+        register(Some(PreviousMaps {
+            maps,
+            moved: None,
+            margin: 3.0,
+        }))
+    };
     let same = around(&full.disparities);
     let off: Vec<DisparityMap> = full
         .disparities

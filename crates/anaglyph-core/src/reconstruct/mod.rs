@@ -334,16 +334,6 @@ fn reconstruct_frame(
     };
     let cut = previous.is_some() && reuse.is_none();
     let mut report = ReuseReport::fresh(previous.is_some(), cut, correlation);
-    settings.check_cancelled("registration")?;
-    let registered = register_array(
-        rig,
-        captures,
-        &calibrated,
-        settings,
-        (reuse, &mut report),
-        &mut log,
-        progress,
-    )?;
     // Where each camera's capture moved since the references the previous frame kept;
     // the references follow the captures where they moved.
     let now: Vec<&Image<f32>> = calibrated.views.iter().map(|v| &v.image).collect();
@@ -352,6 +342,16 @@ fn reconstruct_frame(
         None if hand_on => (None, now.iter().map(|&i| i.clone()).collect()),
         None => (None, Vec::new()),
     };
+    settings.check_cancelled("registration")?;
+    let registered = register_array(
+        rig,
+        captures,
+        &calibrated,
+        settings,
+        (reuse, changes.as_ref(), &mut report),
+        &mut log,
+        progress,
+    )?;
     let mut pass = ViewPass::new(rig, &calibrated, &registered, &plan, settings);
     pass.changes = changes.as_ref();
     pass.hand_on = hand_on;

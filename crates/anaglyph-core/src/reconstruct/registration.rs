@@ -7,6 +7,7 @@
 //! signals matched by, the pixels moved to planes of ambiguous regions, the agreement.
 
 use super::reuse::{at_narrowed_ends, previous_maps, Reuse, ReuseReport};
+use super::view_reuse::CameraChanges;
 use super::{
     ArrayCaptures, CalibratedArray, Disparities, DisparitySearch, PipelineSettings, RunLog, Stage,
 };
@@ -43,7 +44,7 @@ pub(super) fn register_array(
     captures: &ArrayCaptures,
     calibrated: &CalibratedArray,
     settings: &PipelineSettings<'_>,
-    reuse: (Option<Reuse<'_>>, &mut ReuseReport),
+    reuse: (Option<Reuse<'_>>, Option<&CameraChanges>, &mut ReuseReport),
     log: &mut RunLog,
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
@@ -97,7 +98,7 @@ fn estimate_maps(
     calibrated: &CalibratedArray,
     (search, geometry): (DisparitySearch, &ArrayGeometry),
     settings: &PipelineSettings<'_>,
-    (reuse, report): (Option<Reuse<'_>>, &mut ReuseReport),
+    (reuse, changes, report): (Option<Reuse<'_>>, Option<&CameraChanges>, &mut ReuseReport),
     log: &mut RunLog,
     progress: &super::Progress<'_>,
 ) -> Result<RegisteredArray> {
@@ -118,7 +119,7 @@ fn estimate_maps(
     };
     let narrowed = reuse.and_then(|r| r.carry.narrowed(whole));
     // Each tile searches around the previous frame's maps.
-    let previous = reuse.map(|r| previous_maps(r.carry, whole));
+    let previous = reuse.map(|r| previous_maps(r.carry, changes, whole));
     let register = |range: DisparityRange, previous| {
         register_views(
             &images,

@@ -216,10 +216,16 @@ pub(super) fn motion_margin(whole: DisparityRange) -> i32 {
 }
 
 /// The previous frame's maps that registration searches around, each tile over the
-/// disparities near it ± the [`motion_margin`] ([`PreviousMaps`]).
-pub(super) fn previous_maps(carry: &FrameCarry, whole: DisparityRange) -> PreviousMaps<'_> {
+/// disparities near it ± the [`motion_margin`] ([`PreviousMaps`]), with where each camera
+/// saw something move (`changes`).
+pub(super) fn previous_maps<'a>(
+    carry: &'a FrameCarry,
+    changes: Option<&'a CameraChanges>,
+    whole: DisparityRange,
+) -> PreviousMaps<'a> {
     PreviousMaps {
         maps: &carry.maps,
+        moved: changes.map(|c| c.moved.as_slice()),
         margin: motion_margin(whole) as f32,
     }
 }

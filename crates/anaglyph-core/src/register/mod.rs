@@ -119,11 +119,16 @@ pub struct RegistrationSettings<'a> {
 /// The previous frame's maps, which the next frame of a sequence searches around (temporal
 /// reuse): each tile of a view over the disparities its previous map held near it, widened
 /// by `margin` for motion in depth (the whole range where the previous map was unsure
-/// there, or where the winners pile up at an end of the band).
+/// there, or where the winners pile up at an end of the band); in views large enough to
+/// go coarse to fine, the costs pulled towards the previous disparity where the view's
+/// camera saw nothing move.
 #[derive(Debug, Clone, Copy)]
 pub struct PreviousMaps<'a> {
     /// Per view, the previous frame's map (the views' size and column-step convention).
     pub maps: &'a [DisparityMap],
+    /// Per view, the pixels of its camera's capture that moved since the previous
+    /// disparities were found there (None: unknown; no pixel is pulled).
+    pub moved: Option<&'a [Vec<bool>]>,
     /// Disparities a tile's band reaches beyond the previous ones near it, px.
     pub margin: f32,
 }

@@ -196,7 +196,12 @@ fn around_previous(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Registration> {
     let size = (images[0].image.width, images[0].image.height);
-    let guides = BandGuide::of_previous(previous, geometry, size)?;
+    // A large view's tiles are small against its surfaces: SGM's short paths in a tile
+    // need the pull where the view has no texture, as at the fine level of coarse to
+    // fine (on the 3×3 array at 1600×1200 a reused frame's bad-1 was 23.7 % without it,
+    // 5.7 % with it). A small view's tiles span most of it, and the pull cost up to 0.14
+    // dB a frame there (the 3×3 array at 320×240; docs/sequence.md).
+    let guides = BandGuide::of_previous(previous, geometry, size, large)?;
     let mut timings = Vec::new();
     let clock = Instant::now();
     let features = match large {
@@ -215,24 +220,28 @@ fn around_previous(
 /// What the tiles of a banded search search around: a view's coarse map (coarse to fine)
 /// or its map in the previous frame (a frame of a sequence), and which of the map's
 /// pixels a neighbouring view's map confirms.
-struct BandGuide {
+struct BandGuide<'a> {
     map: DisparityMap,
     confirmed: Vec<bool>,
     /// Full-resolution pixels per pixel of `map` (2 for a coarse map, 1 for a previous
     /// frame's).
     scale: usize,
-    kind: GuideKind,
+    kind: GuideKind<'a>,
 }
 
-enum GuideKind {
+enum GuideKind<'a> {
     /// The same frame's map at half the resolution.
     Coarse,
     /// The previous frame's map at full resolution, with the band's margin for motion in
-    /// depth.
-    Previous { margin: f32 },
+    /// depth and, where the costs are pulled towards it, the pixels of the view's camera
+    /// that moved since (None: no pull).
+    Previous {
+        margin: f32,
+        pulled: Option<&'a [bool]>,
+    },
 }
 
-impl BandGuide {
+impl<'a> BandGuide<'a> {
     /// Every view's guide from its coarse map (`coarse`, in view order).
     fn of_coarse(coarse: Vec<DisparityMap>, geometry: &ArrayGeometry) -> Vec<Self> {
         let confirmed = confirmed_pixels(&coarse, geometry);
@@ -249,11 +258,13 @@ impl BandGuide {
     }
 
     /// Every view's guide from the previous frame's maps, checked against the views'
-    /// size.
+    /// size; with `pull`, the costs are pulled towards them where the view's camera saw
+    /// nothing move.
     fn of_previous(
-        previous: &PreviousMaps<'_>,
+        previous: &PreviousMaps<'a>,
         geometry: &ArrayGeometry,
         (w, h): (usize, usize),
+        pull: bool,
     ) -> Result<Vec<Self>> {
         let maps = previous.maps;
         if maps.len() != geometry.len() {
@@ -266,16 +277,30 @@ impl BandGuide {
         for map in maps {
             map.check(w, h, DisparityConvention::ColumnStep)?;
         }
+        if let Some(moved) = previous.moved {
+            if moved.len() != maps.len() || moved.iter().any(|m| m.len() != w * h) {
+                return Err(Error::Shape {
+                    op: "registration around the previous frame's maps: moved pixels".into(),
+                    got: vec![moved.len(), moved.first().map_or(0, Vec::len)],
+                    expected: vec![maps.len(), w * h],
+                });
+            }
+        }
         let confirmed = confirmed_pixels(maps, geometry);
         Ok(maps
             .iter()
             .zip(confirmed)
-            .map(|(map, confirmed)| BandGuide {
+            .enumerate()
+            .map(|(i, (map, confirmed))| BandGuide {
                 map: map.clone(),
                 confirmed,
                 scale: 1,
                 kind: GuideKind::Previous {
                     margin: previous.margin,
+                    pulled: match (pull, previous.moved) {
+                        (true, Some(moved)) => Some(moved[i].as_slice()),
+                        _ => None,
+                    },
                 },
             })
             .collect())
@@ -354,12 +379,14 @@ impl BandGuide {
     }
 
     /// The guide's disparity (full-resolution pixels) that pixel (x, y)'s costs are
-    /// pulled towards: a coarse guide's where it is known. A previous frame's pulls
-    /// nowhere: on the 3×3 narrow-band array's moving tabletop, pulling the pixels whose
-    /// camera saw nothing move cost up to 0.14 dB a frame (docs/sequence.md).
+    /// pulled towards: a coarse guide's where it is known, a previous frame's where it is
+    /// pulled and the view's camera saw nothing move.
     fn pull_target(&self, x: usize, y: usize) -> Option<f32> {
-        if let GuideKind::Previous { .. } = self.kind {
-            return None;
+        if let GuideKind::Previous { pulled, .. } = self.kind {
+            match pulled {
+                Some(moved) if !moved[y * self.map.width + x] => {}
+                _ => return None,
+            }
         }
         let (cx, cy) = self.guide_pixel(x, y);
         let g = self.scale as f32 * self.map.data[cy * self.map.width + cx];
@@ -525,7 +552,7 @@ fn match_views_in_bands(
     images: &[ViewImage],
     costs: &PointCosts<'_>,
     settings: &RegistrationSettings<'_>,
-    guides: &[BandGuide],
+    guides: &[BandGuide<'_>],
     timings: &mut Vec<(String, f64)>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<(MatchedViews, BandedSearch)> {
