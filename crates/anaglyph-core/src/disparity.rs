@@ -84,6 +84,25 @@ impl DisparityRange {
         DisparityRange { min, max }
     }
 
+    /// How many of `values` lie within half a pixel of an end of this range (searched
+    /// within `whole`) that is not an end of `whole`: a search narrowed to this range that
+    /// missed surfaces piles its disparities there.
+    pub fn count_at_inner_ends(
+        &self,
+        whole: DisparityRange,
+        values: impl IntoIterator<Item = f32>,
+    ) -> usize {
+        let low = (self.min > whole.min).then_some(self.min as f32);
+        let high = (self.max < whole.max).then_some((self.max - 1) as f32);
+        if low.is_none() && high.is_none() {
+            return 0;
+        }
+        values
+            .into_iter()
+            .filter(|&d| low.is_some_and(|l| d <= l + 0.5) || high.is_some_and(|h| d >= h - 0.5))
+            .count()
+    }
+
     /// Whether `d` lies between the smallest and the largest disparity searched.
     pub fn contains(&self, d: f32) -> bool {
         d >= self.min as f32 && d <= (self.max - 1) as f32

@@ -494,21 +494,27 @@ fn warping_masks_what_a_view_cannot_see_and_demux_never_invents_it() {
     );
 }
 
-#[test]
-fn the_search_range_is_found_from_the_captures() {
-    use anaglyph_core::register::{estimate_search_range, ViewImage};
-    let (rig, simulation) = tabletop();
-    let captures = ArrayCaptures::from_simulation(&simulation);
-    let network = MatchingNetwork::default_fast().unwrap();
-    let images: Vec<ViewImage> = captures
+/// Each camera's grey capture as registration's view image (luminance, every pixel
+/// measured).
+fn grey_views(captures: &ArrayCaptures) -> Vec<anaglyph_core::register::ViewImage> {
+    captures
         .grey_images()
         .into_iter()
-        .map(|image| ViewImage {
+        .map(|image| anaglyph_core::register::ViewImage {
             image,
             matching: Vec::new(),
             measured: None,
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn the_search_range_is_found_from_the_captures() {
+    use anaglyph_core::register::estimate_search_range;
+    let (rig, simulation) = tabletop();
+    let captures = ArrayCaptures::from_simulation(&simulation);
+    let network = MatchingNetwork::default_fast().unwrap();
+    let images = grey_views(&captures);
     let geometry = ArrayGeometry::of_rig(&rig);
     let range = estimate_search_range(
         &images,
@@ -952,19 +958,11 @@ fn a_run_written_view_by_view_equals_the_field_written_at_the_end() {
 /// the tiles back to the whole range, which finds the surfaces again.
 #[test]
 fn registration_around_previous_maps_keeps_the_full_search_quality() {
-    use anaglyph_core::register::{register_views, PreviousMaps, ViewImage};
+    use anaglyph_core::register::{register_views, PreviousMaps};
     let (rig, simulation) = tabletop();
     let captures = ArrayCaptures::from_simulation(&simulation);
     let network = MatchingNetwork::default_fast().unwrap();
-    let images: Vec<ViewImage> = captures
-        .grey_images()
-        .into_iter()
-        .map(|image| ViewImage {
-            image,
-            matching: Vec::new(),
-            measured: None,
-        })
-        .collect();
+    let images = grey_views(&captures);
     let geometry = ArrayGeometry::of_rig(&rig);
     let truth = simulation.disparity_maps();
     // Twice the scene's disparities (0 to 11.4 px), as an estimated range may be.

@@ -132,7 +132,6 @@ fn estimate_maps(
         )
     };
     let mut registration = register(narrowed.unwrap_or(whole), previous)?;
-    let mut banded = previous.is_some();
     if let Some(narrowed) = narrowed {
         report.narrowed_range = Some(narrowed);
         if at_narrowed_ends(&registration.disparities, narrowed, whole) {
@@ -143,14 +142,13 @@ fn estimate_maps(
             }
             // The previous maps missed the surfaces: registered as a frame alone is.
             registration = register(whole, None)?;
-            banded = false;
         }
     }
     for (name, seconds) in &registration.timings {
         log.timings
             .push((format!("registration: {name}"), *seconds));
     }
-    if banded {
+    if previous.is_some() && !report.range_fallback {
         report.banded = registration.banded;
     }
     Ok(RegisteredArray {

@@ -238,14 +238,8 @@ pub(super) fn at_narrowed_ends(
     narrowed: DisparityRange,
     whole: DisparityRange,
 ) -> bool {
-    let low = (narrowed.min > whole.min).then_some(narrowed.min as f32);
-    let high = (narrowed.max < whole.max).then_some((narrowed.max - 1) as f32);
     maps.iter().any(|map| {
-        let at_end = map
-            .data
-            .iter()
-            .filter(|&&d| low.is_some_and(|l| d <= l + 0.5) || high.is_some_and(|h| d >= h - 0.5))
-            .count();
+        let at_end = narrowed.count_at_inner_ends(whole, map.data.iter().copied());
         at_end as f64 > AT_END_FRACTION * map.data.len() as f64
     })
 }

@@ -95,7 +95,7 @@ pub fn multi_baseline_disparities(
             progress,
         );
     }
-    if large && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE {
+    if large {
         return coarse_to_fine(network, images, geometry, settings, progress);
     }
     let mut timings = Vec::new();
@@ -315,67 +315,80 @@ impl<'a> BandGuide<'a> {
     }
 
     /// The disparities the tile searches over the full-resolution window `columns` ×
-    /// `rows`, within `whole`: for a coarse guide, the upsampled disparities under the
-    /// window ± [`BAND_MARGIN`] (all of `whole` where one is unknown or too many are
-    /// unsure); for a previous frame's, the confirmed disparities within [`MOTION_REACH`]
-    /// of the window ± its margin (all of `whole` where too many are unsure or unknown).
+    /// `rows`, within `whole` ([`BandGuide::coarse_band`], [`BandGuide::previous_band`]).
     fn band(
         &self,
         columns: &Range<usize>,
         rows: &Range<usize>,
         whole: DisparityRange,
     ) -> DisparityRange {
+        match self.kind {
+            GuideKind::Coarse => self.coarse_band(columns, rows, whole),
+            GuideKind::Previous { margin, .. } => self.previous_band(columns, rows, whole, margin),
+        }
+    }
+
+    /// The upsampled coarse disparities under the window ± [`BAND_MARGIN`], or all of
+    /// `whole` where the coarse map is unknown or unsure there.
+    fn coarse_band(
+        &self,
+        columns: &Range<usize>,
+        rows: &Range<usize>,
+        whole: DisparityRange,
+    ) -> DisparityRange {
         let cw = self.map.width;
-        let (margin, (x0, y0), (x1, y1)) = match self.kind {
-            GuideKind::Coarse => (
-                BAND_MARGIN,
-                self.guide_pixel(columns.start, rows.start),
-                self.guide_pixel(columns.end - 1, rows.end - 1),
-            ),
-            GuideKind::Previous { margin, .. } => (
-                margin,
-                (
-                    columns.start.saturating_sub(MOTION_REACH),
-                    rows.start.saturating_sub(MOTION_REACH),
-                ),
-                (
-                    (columns.end - 1 + MOTION_REACH).min(cw - 1),
-                    (rows.end - 1 + MOTION_REACH).min(self.map.height - 1),
-                ),
-            ),
-        };
-        let coarse = matches!(self.kind, GuideKind::Coarse);
-        let scale = self.scale as f32;
+        let (x0, y0) = self.guide_pixel(columns.start, rows.start);
+        let (x1, y1) = self.guide_pixel(columns.end - 1, rows.end - 1);
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         let (mut unsure, mut total) = (0usize, 0usize);
         for cy in y0..=y1 {
             for cx in x0..=x1 {
                 let i = cy * cw + cx;
-                let d = scale * self.map.data[i];
-                total += 1;
+                let d = self.scale as f32 * self.map.data[i];
                 if !d.is_finite() {
-                    match coarse {
-                        true => return whole,
-                        false => {
-                            unsure += 1;
-                            continue;
-                        }
-                    }
+                    return whole;
                 }
+                (lo, hi) = (lo.min(d), hi.max(d));
                 unsure += usize::from(!self.confirmed[i]);
-                // A previous frame's unsure disparities are left out of its band (a
-                // mismatch would hold it open); the coarse level's are not.
-                if coarse || self.confirmed[i] {
+                total += 1;
+            }
+        }
+        if unsure as f64 > UNSURE_FRACTION * total as f64 {
+            return whole;
+        }
+        widened(lo, hi, BAND_MARGIN, whole)
+    }
+
+    /// The previous frame's confirmed disparities within [`MOTION_REACH`] of the window
+    /// ± `margin` (its unsure ones are left out: a mismatch would hold the band open), or
+    /// all of `whole` where too many are unsure or unknown.
+    fn previous_band(
+        &self,
+        columns: &Range<usize>,
+        rows: &Range<usize>,
+        whole: DisparityRange,
+        margin: f32,
+    ) -> DisparityRange {
+        let (w, h) = (self.map.width, self.map.height);
+        let xs = columns.start.saturating_sub(MOTION_REACH)..(columns.end + MOTION_REACH).min(w);
+        let ys = rows.start.saturating_sub(MOTION_REACH)..(rows.end + MOTION_REACH).min(h);
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        let mut unsure = 0usize;
+        for y in ys.clone() {
+            for x in xs.clone() {
+                let i = y * w + x;
+                let d = self.map.data[i];
+                if d.is_finite() && self.confirmed[i] {
                     (lo, hi) = (lo.min(d), hi.max(d));
+                } else {
+                    unsure += 1;
                 }
             }
         }
-        if unsure as f64 > UNSURE_FRACTION * total as f64 || lo > hi {
+        if unsure as f64 > UNSURE_FRACTION * (xs.len() * ys.len()) as f64 || lo > hi {
             return whole;
         }
-        let min = ((lo - margin).floor() as i32).max(whole.min);
-        let max = ((hi + margin).ceil() as i32 + 1).min(whole.max);
-        DisparityRange::new(min, max).unwrap_or(whole)
+        widened(lo, hi, margin, whole)
     }
 
     /// The guide's disparity (full-resolution pixels) that pixel (x, y)'s costs are
@@ -391,6 +404,12 @@ impl<'a> BandGuide<'a> {
         let (cx, cy) = self.guide_pixel(x, y);
         let g = self.scale as f32 * self.map.data[cy * self.map.width + cx];
         g.is_finite().then_some(g)
+    }
+
+    /// Whether the guide pulls any costs ([`BandGuide::pull_target`]); a tile's volume is
+    /// not copied when it does not.
+    fn pulls(&self) -> bool {
+        !matches!(self.kind, GuideKind::Previous { pulled: None, .. })
     }
 
     /// Whether a tile whose winners pile up at an end of its band searches again over the
@@ -430,6 +449,13 @@ impl<'a> BandGuide<'a> {
         }
         pulled
     }
+}
+
+/// `lo..=hi` widened by `margin` to whole disparities, within `whole`.
+fn widened(lo: f32, hi: f32, margin: f32, whole: DisparityRange) -> DisparityRange {
+    let min = ((lo - margin).floor() as i32).max(whole.min);
+    let max = ((hi + margin).ceil() as i32 + 1).min(whole.max);
+    DisparityRange::new(min, max).unwrap_or(whole)
 }
 
 /// Per view, which pixels of its map a neighbouring view's map confirms.
@@ -595,9 +621,13 @@ fn match_views_in_bands(
                 let (wc, wr) = (widen(columns, w), widen(rows, h));
                 let search = |band: DisparityRange| -> Result<TileResult> {
                     let volume = costs.window_volume(i, (wc.clone(), wr.clone()), band);
-                    let guided = guide.pulled_towards(&volume, &wc, &wr);
+                    let pulled = guide
+                        .pulls()
+                        .then(|| guide.pulled_towards(&volume, &wc, &wr));
                     let tile_disparity =
-                        winners(&guided, &chain, || guide_image.crop(wc.clone(), wr.clone()))?;
+                        winners(pulled.as_ref().unwrap_or(&volume), &chain, || {
+                            guide_image.crop(wc.clone(), wr.clone())
+                        })?;
                     Ok(TileResult {
                         window: (wc.clone(), wr.clone()),
                         band,
@@ -699,27 +729,21 @@ struct TileResult {
 
 impl TileResult {
     /// Whether more than [`AT_BAND_END_FRACTION`] of the tile's own pixels (`columns` ×
-    /// `rows`, within the window) won at an end of the band that is not an end of `whole`.
+    /// `rows`, within the window) won at an end of the band that is not an end of `whole`
+    /// ([`DisparityRange::count_at_inner_ends`]).
     fn piles_at_band_ends(
         &self,
         (columns, rows): (&Range<usize>, &Range<usize>),
         whole: DisparityRange,
     ) -> bool {
-        let band = self.band;
-        let low = (band.min > whole.min).then_some(band.min as f32);
-        let high = (band.max < whole.max).then_some((band.max - 1) as f32);
-        if low.is_none() && high.is_none() {
-            return false;
-        }
         let (wc, wr) = &self.window;
-        let at_ends = rows
-            .clone()
-            .flat_map(|y| columns.clone().map(move |x| (x, y)))
-            .filter(|&(x, y)| {
-                let d = self.disparity[(y - wr.start) * wc.len() + x - wc.start];
-                Some(d) == low || Some(d) == high
-            })
-            .count();
+        let own = rows.clone().flat_map(|y| {
+            let row = (y - wr.start) * wc.len();
+            columns
+                .clone()
+                .map(move |x| self.disparity[row + x - wc.start])
+        });
+        let at_ends = self.band.count_at_inner_ends(whole, own);
         at_ends as f64 > AT_BAND_END_FRACTION * (columns.len() * rows.len()) as f64
     }
 }
