@@ -407,6 +407,9 @@ fn reconstruct_frame(
     .flatten()
     .chain(solve_stages.iter().copied())
     .collect();
+    for (stage, seconds) in &log.timings {
+        tracing::debug!("stage {stage}: {seconds:.3} s");
+    }
     let field = LightField {
         width: layout.width,
         height: layout.height,

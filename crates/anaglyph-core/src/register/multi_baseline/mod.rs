@@ -181,12 +181,14 @@ fn coarse_to_fine(
     Ok(registration)
 }
 
-/// Registration of a frame of a sequence around the previous frame's maps: the features
-/// of one level (those of the fine level where the views are large enough to go coarse to
-/// fine), then every view tile by tile over a band around its previous disparities
-/// ([`BandGuide::band`]; the whole range where they were unsure, or where the winners pile
-/// up at an end of the band), then the subpixel fit and filters of one level. The coarse
-/// level is not needed: the previous frame's maps guide instead.
+/// Registration of a frame of a sequence around the previous frame's maps, as the fine
+/// level of coarse to fine registers around the coarse maps: features of [`FINE_DIMS`]
+/// dimensions (of every matching image where the views are small and their images differ,
+/// else of the leading one), then every view tile by tile over a band
+/// around its previous disparities ([`BandGuide::band`]; the whole range where they were
+/// unsure, or where the winners pile up at an end of the band), then the subpixel fit and
+/// filters of one level. The coarse level is not needed: the previous frame's maps guide
+/// instead.
 fn around_previous(
     network: &MatchingNetwork,
     images: &[ViewImage],
@@ -204,10 +206,18 @@ fn around_previous(
     let guides = BandGuide::of_previous(previous, geometry, size, large)?;
     let mut timings = Vec::new();
     let clock = Instant::now();
-    let features = match large {
-        true => view_features(network, images, FINE_SIGNALS, Some(FINE_DIMS))?,
-        false => view_features(network, images, usize::MAX, None)?,
+    // The band, around surfaces the previous frame told apart, leaves the features little
+    // to tell apart: with the fine level's dimensions a reused frame at 320×240 took 2.2
+    // instead of 3.7 s on the 3×3 array and 3.3 instead of 4.0 s on the paper's rig, up
+    // to 0.2 dB below the full features' and never 0.3 dB below the frame alone
+    // (docs/sequence.md). Where the views are small and their matching images differ
+    // (cameras of several channels) every one is kept: the leading one alone cost the
+    // paper's rig 0.2 to 0.3 dB.
+    let signals = match large || images.iter().all(matching_up_to_sign) {
+        true => FINE_SIGNALS,
+        false => usize::MAX,
     };
+    let features = view_features(network, images, signals, Some(FINE_DIMS))?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let (matched, banded) =
@@ -215,6 +225,18 @@ fn around_previous(
     let mut registration = finish(matched, &costs, settings.range, timings)?;
     registration.banded = Some(banded);
     Ok(registration)
+}
+
+/// Whether a view's matching images are all its first one up to sign, as a one-channel
+/// camera's are ([`super::common_signal_images`]): the others change only the sign of
+/// some of its comparisons.
+fn matching_up_to_sign(view: &ViewImage) -> bool {
+    let Some((first, others)) = view.matching.split_first() else {
+        return true;
+    };
+    others
+        .iter()
+        .all(|other| (other.data.iter().zip(&first.data)).all(|(&a, &b)| a == b || a == -b))
 }
 
 /// What the tiles of a banded search search around: a view's coarse map (coarse to fine)
