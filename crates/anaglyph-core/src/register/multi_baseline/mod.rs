@@ -207,10 +207,10 @@ fn around_previous(
     let mut timings = Vec::new();
     let clock = Instant::now();
     // The band, around surfaces the previous frame told apart, leaves the features little
-    // to tell apart: with the fine level's dimensions a reused frame at 320×240 took 2.2
-    // instead of 3.7 s on the 3×3 array and 3.3 instead of 4.0 s on the paper's rig, up
-    // to 0.2 dB below the full features' and never 0.3 dB below the frame alone
-    // (docs/sequence.md). Where the views are small and their matching images differ
+    // to tell apart: with the fine level's dimensions a reused frame at 320×240 took 2.58
+    // instead of 3.66 s on the 3×3 array and 3.25 instead of 3.97 s on the paper's rig
+    // (medians of the first 8 frames), up to 0.2 dB below the full features' and never
+    // 0.3 dB below the frame alone (docs/sequence.md). Where the views are small and their matching images differ
     // (cameras of several channels) every one is kept: the leading one alone cost the
     // paper's rig 0.2 to 0.3 dB.
     let signals = match large || images.iter().all(matching_up_to_sign) {
