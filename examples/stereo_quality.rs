@@ -8,7 +8,10 @@
 //! scenes, random gels, sensors and channels); with `ANAGLYPH_PAIRS=rig`, the paper rig's
 //! own neighbouring cameras on the three presets instead (`ANAGLYPH_PRESETS=tabletop` for
 //! fewer); with `ANAGLYPH_PAIRS=narrow`, the same held-out scenes seen by two monochrome
-//! cameras behind narrow-band filters (`PairSettings::narrow_band_share`).
+//! cameras behind narrow-band filters (`PairSettings::narrow_band_share`); with
+//! `ANAGLYPH_PAIRS=camera`, the same held-out scenes and gels recorded as real cameras
+//! record them (`PairSettings::camera_effects_share`: defocus, vignetting, pixel gains,
+//! noise at a gain and exposure of their own, saturation, gamma-encoded 8-bit files).
 //! `ANAGLYPH_ACCURATE_MODEL=models/mccnn-accurate.safetensors` adds the accurate network;
 //! `ANAGLYPH_FAST_MODEL=M.safetensors` replaces the embedded fast network with another
 //! fast one (to compare weights on the same pairs); `ANAGLYPH_COSTS=mccnn,mccnn-accurate`
@@ -147,12 +150,15 @@ fn main() -> anyhow::Result<()> {
     } else {
         // Every held-out scene twice, once with different gels or channels, once with
         // the same: the two kinds differ only in the filters.
-        let narrow = std::env::var("ANAGLYPH_PAIRS").is_ok_and(|v| v == "narrow");
+        let kind = std::env::var("ANAGLYPH_PAIRS").unwrap_or_default();
+        let narrow = kind == "narrow";
+        let camera = kind == "camera";
         let settings = PairSettings {
             width,
             height,
             homogeneous_share: 0.5,
             narrow_band_share: if narrow { 1.0 } else { 0.0 },
+            camera_effects_share: if camera { 1.0 } else { 0.0 },
         };
         max_disp = 64 * width / 256;
         for i in 0..count as u64 {
@@ -168,10 +174,10 @@ fn main() -> anyhow::Result<()> {
         println!(
             "{count} held-out random scenes (seeds {TEST_SEED}+) at {width}×{height}, \
              {max_disp} disparities{}",
-            if narrow {
-                ", monochrome cameras behind narrow-band filters"
-            } else {
-                ""
+            match (narrow, camera) {
+                (true, _) => ", monochrome cameras behind narrow-band filters",
+                (_, true) => ", recorded through camera effects (CameraEffects)",
+                _ => "",
             }
         );
     }

@@ -168,6 +168,18 @@ pub struct TrainArgs {
     /// [default: 0].
     #[arg(long, allow_hyphen_values = true)]
     pub narrow_band_share: Option<f64>,
+    /// Share of the training and validation pairs whose cameras record as real ones do:
+    /// defocus, vignetting, pixel gains, noise at a gain and exposure of their own,
+    /// saturation, and (half of them) gamma-encoded 8-bit files [default: 0].
+    #[arg(long, allow_hyphen_values = true)]
+    pub camera_effects_share: Option<f64>,
+    /// Distance of a triplet's negative patch from the true match, NEAR:FAR px, either
+    /// side [default: 4:10, MC-CNN's KITTI values].
+    #[arg(long, value_name = "NEAR:FAR")]
+    pub negatives: Option<String>,
+    /// Largest distance of a triplet's positive patch from the true match, px [default: 1].
+    #[arg(long)]
+    pub positive_offset: Option<f32>,
     /// Also write the validation curve as CSV here.
     #[arg(long)]
     pub curve: Option<PathBuf>,

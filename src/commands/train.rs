@@ -4,6 +4,7 @@
 
 use super::{check_output_files, format_seconds};
 use crate::cli::{ArchitectureChoice, TrainArgs};
+use anaglyph_cnn::dataset::Sampling;
 use anaglyph_cnn::{train_segment, Architecture, Checkpoint, Outcome, Segment, TrainSettings};
 use anaglyph_core::io::write_atomically;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -248,7 +249,45 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
         }
         settings.pairs.narrow_band_share = share;
     }
+    if let Some(share) = args.camera_effects_share {
+        if !(0.0..=1.0).contains(&share) {
+            anyhow::bail!("--camera-effects-share {share}: expected a share in [0, 1]");
+        }
+        settings.pairs.camera_effects_share = share;
+    }
+    if let Some(offset) = args.positive_offset {
+        if !(offset.is_finite() && (0.0..=4.0).contains(&offset)) {
+            anyhow::bail!("--positive-offset {offset}: expected pixels in [0, 4]");
+        }
+        settings.sampling.positive_offset = offset;
+    }
+    if let Some(text) = &args.negatives {
+        settings.sampling.negative_offsets = negatives(text)?;
+    }
+    let sampling = settings.sampling;
+    if sampling.negative_offsets.0 <= sampling.positive_offset {
+        anyhow::bail!(
+            "--negatives {}:{}: the nearest negative must lie farther from the true match \
+             than the farthest positive ({} px)",
+            sampling.negative_offsets.0,
+            sampling.negative_offsets.1,
+            sampling.positive_offset
+        );
+    }
     Ok(settings)
+}
+
+/// `--negatives NEAR:FAR`: 0 < NEAR ≤ FAR ≤ 64 px.
+fn negatives(text: &str) -> anyhow::Result<(f32, f32)> {
+    let parsed = text
+        .split_once(':')
+        .and_then(|(a, b)| Some((a.trim().parse::<f32>().ok()?, b.trim().parse::<f32>().ok()?)));
+    match parsed {
+        Some((near, far)) if near > 0.0 && near <= far && far <= 64.0 => Ok((near, far)),
+        _ => anyhow::bail!(
+            "--negatives {text}: expected NEAR:FAR in pixels with 0 < NEAR <= FAR <= 64 (e.g. 4:10)"
+        ),
+    }
 }
 
 /// `anaglyph train` with every recipe option spelled out, and the outputs.
@@ -274,6 +313,19 @@ fn recipe_command(settings: &TrainSettings, args: &TrainArgs) -> String {
             settings.pairs.narrow_band_share
         ));
     }
+    if settings.pairs.camera_effects_share > 0.0 {
+        command.push_str(&format!(
+            " --camera-effects-share {}",
+            settings.pairs.camera_effects_share
+        ));
+    }
+    if settings.sampling != Sampling::MC_CNN_KITTI {
+        let s = settings.sampling;
+        command.push_str(&format!(
+            " --positive-offset {} --negatives {}:{}",
+            s.positive_offset, s.negative_offsets.0, s.negative_offsets.1
+        ));
+    }
     if let Some(curve) = &args.curve {
         command.push_str(&format!(" --curve {}", curve.display()));
     }
@@ -287,7 +339,7 @@ fn recipe_of_checkpoint(
 ) -> anyhow::Result<TrainSettings> {
     let saved = &checkpoint.settings;
     let arch = args.arch.map(architecture);
-    let given: [(&str, Option<String>, String); 8] = [
+    let given: [(&str, Option<String>, String); 11] = [
         (
             "--arch",
             arch.map(|a| format!("{a:?}")),
@@ -327,6 +379,27 @@ fn recipe_of_checkpoint(
             "--narrow-band-share",
             args.narrow_band_share.map(|v| v.to_string()),
             saved.pairs.narrow_band_share.to_string(),
+        ),
+        (
+            "--camera-effects-share",
+            args.camera_effects_share.map(|v| v.to_string()),
+            saved.pairs.camera_effects_share.to_string(),
+        ),
+        (
+            "--positive-offset",
+            args.positive_offset.map(|v| v.to_string()),
+            saved.sampling.positive_offset.to_string(),
+        ),
+        (
+            "--negatives",
+            args.negatives
+                .as_deref()
+                .map(|t| negatives(t).map(|(a, b)| format!("{a}:{b}")))
+                .transpose()?,
+            format!(
+                "{}:{}",
+                saved.sampling.negative_offsets.0, saved.sampling.negative_offsets.1
+            ),
         ),
     ];
     for (option, asked, kept) in given {

@@ -95,6 +95,34 @@ fn a_run_in_two_segments_writes_the_weights_of_the_run_made_at_once() {
     );
     let o = anaglyph(&["train", "--out", "x", "--narrow-band-share", "1.5"], d);
     assert_clean_failure(&o, "--narrow-band-share 1.5: expected a share in [0, 1]");
+    let o = anaglyph(
+        &[
+            "train",
+            "--resume",
+            "ck",
+            "--out",
+            "x",
+            "--negatives",
+            "1.5:6",
+        ],
+        d,
+    );
+    assert_clean_failure(&o, "--negatives 1.5:6: the run checkpointed in ck has 4:10");
+    let o = anaglyph(
+        &["train", "--out", "x", "--camera-effects-share", "-0.1"],
+        d,
+    );
+    assert_clean_failure(
+        &o,
+        "--camera-effects-share -0.1: expected a share in [0, 1]",
+    );
+    let o = anaglyph(&["train", "--out", "x", "--negatives", "6"], d);
+    assert_clean_failure(&o, "--negatives 6: expected NEAR:FAR in pixels");
+    let o = anaglyph(&["train", "--out", "x", "--negatives", "0.5:6"], d);
+    assert_clean_failure(
+        &o,
+        "--negatives 0.5:6: the nearest negative must lie farther from the true match than the farthest positive (1 px)",
+    );
     let o = anaglyph(&["train", "--out", "x", "--stop-at-step", "3"], d);
     assert_clean_failure(&o, "expected --checkpoint DIR with it");
     let o = anaglyph(&["train", "--resume", "once.safetensors", "--out", "x"], d);

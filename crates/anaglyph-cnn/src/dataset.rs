@@ -1,6 +1,6 @@
 //! Training data for the matching network: rectified grey pairs with known disparity, and
 //! MC-CNN's patch triplets sampled from them (a left patch, a right patch at the true
-//! correspondence give or take `POSITIVE_OFFSET`, and one `NEGATIVE_OFFSETS` away), with
+//! correspondence give or take a pixel, and one a few pixels away: [`Sampling`]), with
 //! MC-CNN's geometric and photometric augmentation.
 //!
 //! The pairs come from the simulator: random scenes seen by two cameras behind random
@@ -9,12 +9,17 @@
 //! channel so that same-filter matching does not suffer), plus channel-swapped copies of
 //! the built-in textures (the paper's KITTI recipe, one channel left, another right).
 //! A recipe may add pairs of monochrome cameras behind narrow-band filters
-//! ([`PairSettings::narrow_band_share`]).
+//! ([`PairSettings::narrow_band_share`]), and pairs whose cameras record the scene as real
+//! ones do ([`PairSettings::camera_effects_share`], [`CameraEffects`]): defocus,
+//! vignetting, pixel gains, noise at a gain and exposure of their own, saturation, and
+//! gamma-encoded 8-bit files.
 
 use anaglyph_core::builtin;
+use anaglyph_core::capture::CameraNoise;
+use anaglyph_core::image::gaussian_blur_plane;
 use anaglyph_core::rig::{Rig, PAPER_RIG_FILTERS};
 use anaglyph_core::scene::{builtin_texture, random_scene, Scene, SceneFile, TEXTURE_NAMES};
-use anaglyph_core::simulate::{RenderedView, Simulation, SimulationSettings};
+use anaglyph_core::simulate::{RenderedView, Simulation, SimulationSettings, NOISE_FREE_EXPOSURE};
 use anaglyph_core::stereo::{normalise_image, GreyImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -23,10 +28,30 @@ use std::path::Path;
 
 /// Side of a training patch (the 4-layer tower's receptive field).
 pub const PATCH: usize = 9;
-/// Positive patches lie within this many pixels of the true match (MC-CNN KITTI: 1).
-pub const POSITIVE_OFFSET: f32 = 1.0;
-/// Negative patches lie this far from the true match, either side (MC-CNN KITTI: 4, 10).
-pub const NEGATIVE_OFFSETS: (f32, f32) = (4.0, 10.0);
+
+/// Where a triplet's right patches lie around the true match.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Sampling {
+    /// Positive patches lie within this many pixels of the true match.
+    pub positive_offset: f32,
+    /// Negative patches lie between these distances from the true match, either side.
+    pub negative_offsets: (f32, f32),
+}
+
+impl Sampling {
+    /// MC-CNN's KITTI values (Zbontar & LeCun 2016): positives within 1 px, negatives
+    /// 4–10 px away. The shipped networks' sampling.
+    pub const MC_CNN_KITTI: Sampling = Sampling {
+        positive_offset: 1.0,
+        negative_offsets: (4.0, 10.0),
+    };
+}
+
+impl Default for Sampling {
+    fn default() -> Self {
+        Sampling::MC_CNN_KITTI
+    }
+}
 
 /// How the two views of a pair differ.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,6 +113,11 @@ pub struct PairSettings {
     /// their checkpoints).
     #[serde(default)]
     pub narrow_band_share: f64,
+    /// Share of pairs whose two cameras each record the scene through [`CameraEffects`]
+    /// drawn for the pair, instead of the simulator's default camera. 0 in the recipes
+    /// before it existed (absent from their checkpoints).
+    #[serde(default)]
+    pub camera_effects_share: f64,
 }
 
 impl Default for PairSettings {
@@ -97,6 +127,7 @@ impl Default for PairSettings {
             height: 192,
             homogeneous_share: 0.25,
             narrow_band_share: 0.0,
+            camera_effects_share: 0.0,
         }
     }
 }
@@ -132,6 +163,128 @@ fn narrow_band_filters(seed: u64, homogeneous: bool) -> [String; 2] {
     [first, draw(&mut rng, second_centre)]
 }
 
+/// Defocus blur of a camera, px (Gaussian σ, drawn uniformly for each camera).
+pub const DEFOCUS_SIGMA_PX: (f64, f64) = (0.0, 1.5);
+/// Vignetting of a pair's lenses (light lost at the corners, as
+/// `SimulationSettings::vignetting`), drawn uniformly.
+pub const VIGNETTING: (f64, f64) = (0.0, 0.5);
+/// Standard deviation of a camera's pixel gains (photo-response non-uniformity), drawn
+/// uniformly.
+pub const PRNU: (f64, f64) = (0.0, 0.02);
+/// A camera's full well (electrons per full scale: the gain), drawn log-uniformly.
+pub const FULL_WELL_ELECTRONS: (f64, f64) = (1_500.0, 20_000.0);
+/// A camera's read noise, electrons, drawn uniformly.
+pub const READ_NOISE_ELECTRONS: (f64, f64) = (2.0, 15.0);
+/// The share of full scale a white reaches (log-uniform): from dim narrow-band captures
+/// to over-exposed ones whose bright surfaces saturate.
+pub const EXPOSURE: (f64, f64) = (0.05, 1.6);
+/// Share of pairs written as gamma-encoded 8-bit files (as photographs and most stereo
+/// datasets are), with a gamma drawn uniformly from [`GAMMA`]; the others stay linear at
+/// 12 bits.
+pub const GAMMA_ENCODED_SHARE: f64 = 0.5;
+pub const GAMMA: (f64, f64) = (1.8, 2.4);
+
+/// How one camera of a pair records its image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraResponse {
+    pub defocus_sigma_px: f32,
+    pub prnu: f64,
+    /// Gain, read noise and exposure (12 bits).
+    pub noise: CameraNoise,
+}
+
+/// What a pair of real cameras does to the light the simulator renders, in the order it
+/// happens: the lenses' vignetting (rendered by the simulator), each camera's defocus,
+/// its pixels' gains, its shot and read noise at its own gain and exposure, clipping at
+/// full scale, and the file's encoding (both cameras alike: one pipeline).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraEffects {
+    pub vignetting: f64,
+    pub cameras: [CameraResponse; 2],
+    /// Gamma-encoded 8-bit values with this gamma; None: linear.
+    pub gamma: Option<f64>,
+}
+
+impl CameraEffects {
+    /// The effects of scene seed `seed`'s pair, from a random stream of their own.
+    pub fn draw(seed: u64) -> CameraEffects {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xeffe_c750_0000_0000);
+        let uniform = |rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)| rng.random_range(lo..=hi);
+        let log_uniform = |rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)| {
+            (rng.random_range(lo.ln()..=hi.ln())).exp()
+        };
+        let vignetting = uniform(&mut rng, VIGNETTING);
+        let camera = |rng: &mut ChaCha8Rng| CameraResponse {
+            defocus_sigma_px: uniform(rng, DEFOCUS_SIGMA_PX) as f32,
+            prnu: uniform(rng, PRNU),
+            noise: CameraNoise {
+                full_well_electrons: log_uniform(rng, FULL_WELL_ELECTRONS),
+                read_noise_electrons: uniform(rng, READ_NOISE_ELECTRONS),
+                bits: 12,
+                exposure: log_uniform(rng, EXPOSURE),
+            },
+        };
+        let cameras = [camera(&mut rng), camera(&mut rng)];
+        let gamma = (rng.random::<f64>() < GAMMA_ENCODED_SHARE).then(|| uniform(&mut rng, GAMMA));
+        CameraEffects {
+            vignetting,
+            cameras,
+            gamma,
+        }
+    }
+
+    /// Camera `k`'s recording of `clean`, the noise-free grey signal in units of the white
+    /// board's (1: a white), with noise from `seed`.
+    pub fn record(&self, k: usize, clean: &GreyImage, seed: u64) -> GreyImage {
+        let camera = &self.cameras[k];
+        let (w, h) = (clean.width, clean.height);
+        let blurred = gaussian_blur_plane(w, h, clean.data.clone(), camera.defocus_sigma_px);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x9a1e_5000 ^ k as u64);
+        // Uniform gains of standard deviation `prnu`.
+        let spread = camera.prnu * 3f64.sqrt();
+        let signal: Vec<f64> = blurred
+            .iter()
+            .map(|&v| f64::from(v) * (1.0 + spread * rng.random_range(-1.0..=1.0)))
+            .collect();
+        let noisy = camera.noise.apply(&signal, rng.random());
+        let exposure = camera.noise.exposure;
+        let data = noisy
+            .values
+            .iter()
+            .map(|&v| {
+                let linear = (v * exposure).clamp(0.0, 1.0);
+                match self.gamma {
+                    Some(gamma) => (linear.powf(1.0 / gamma) * 255.0).round() as f32 / 255.0,
+                    None => linear as f32,
+                }
+            })
+            .collect();
+        GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    /// A short description for the pair's label.
+    fn label(&self) -> String {
+        let [a, b] = self.cameras;
+        format!(
+            "vignetting {:.2}, defocus {:.1}/{:.1} px, exposure {:.2}/{:.2}, {}",
+            self.vignetting,
+            a.defocus_sigma_px,
+            b.defocus_sigma_px,
+            a.noise.exposure,
+            b.noise.exposure,
+            match self.gamma {
+                Some(g) => format!("gamma {g:.1}, 8 bits"),
+                None => "linear".to_string(),
+            }
+        )
+    }
+}
+
 /// One simulated pair from scene seed `seed`: random scene, gels, sensor and channels.
 pub fn simulated_pair(seed: u64, settings: &PairSettings) -> anaglyph_core::Result<StereoPair> {
     simulated_pair_with(seed, settings, None, None)
@@ -151,6 +304,12 @@ pub fn simulated_pair_with(
     let homogeneous = homogeneous.unwrap_or(drawn);
     let (w, h) = (settings.width, settings.height);
     let scene = scene.unwrap_or_else(|| random_scene(seed));
+    // Whether the pair's cameras record as real ones do, from a stream of its own (so the
+    // other pairs of a seed are those of the recipes without camera effects).
+    let effects = (settings.camera_effects_share > 0.0
+        && ChaCha8Rng::seed_from_u64(seed ^ 0xeffe_c750_0000_0001).random::<f64>()
+            < settings.camera_effects_share)
+        .then(|| CameraEffects::draw(seed));
     if settings.narrow_band_share > 0.0 {
         let mut kind = ChaCha8Rng::seed_from_u64(seed ^ 0x0a77_0b0d_0000_0001);
         if kind.random::<f64>() < settings.narrow_band_share {
@@ -165,7 +324,16 @@ pub fn simulated_pair_with(
             };
             let label = format!("{} vs {} (panchromatic)", filters[0], filters[1]);
             let channels = [Channel::Luminance; 2];
-            return grey_pair(&camera, scene, (w, h), seed, channels, homogeneous, label);
+            return grey_pair(
+                &camera,
+                scene,
+                (w, h),
+                seed,
+                channels,
+                homogeneous,
+                label,
+                effects,
+            );
         }
     }
     let first = gels[rng.random_range(0..gels.len())];
@@ -208,7 +376,16 @@ pub fn simulated_pair_with(
         name(right_channel)
     );
     let channels = [left_channel, right_channel];
-    grey_pair(&camera, scene, (w, h), seed, channels, homogeneous, label)
+    grey_pair(
+        &camera,
+        scene,
+        (w, h),
+        seed,
+        channels,
+        homogeneous,
+        label,
+        effects,
+    )
 }
 
 /// A random pair's focal length: the paper rig's field of view at width `w`, ×0.6 to 1.4.
@@ -217,7 +394,9 @@ fn random_focal_length(w: usize, rng: &mut ChaCha8Rng) -> f64 {
 }
 
 /// `scene` rendered through `camera` ([`render_pair`]) at `w × h`, each view's `channels`
-/// entry as a normalised grey image.
+/// entry as a normalised grey image; recorded through `effects` when given (rendered
+/// noise-free, then each camera's [`CameraEffects::record`]).
+#[allow(clippy::too_many_arguments)]
 fn grey_pair(
     camera: &RigPair<'_>,
     scene: SceneFile,
@@ -226,11 +405,28 @@ fn grey_pair(
     channels: [Channel; 2],
     homogeneous: bool,
     label: String,
+    effects: Option<CameraEffects>,
 ) -> anaglyph_core::Result<StereoPair> {
-    let (lv, rv, disparity) = render_pair(camera, scene, w, h, seed)?;
+    let (lv, rv, disparity) = render_pair(camera, scene, w, h, seed, effects.as_ref())?;
+    let mut greys = [
+        grey_of(&lv.capture, lv.channels, w, h, channels[0]),
+        grey_of(&rv.capture, rv.channels, w, h, channels[1]),
+    ];
+    let mut label = label;
+    if let Some(effects) = &effects {
+        for (k, grey) in greys.iter_mut().enumerate() {
+            // The noise-free capture in units of the white board's signal.
+            grey.data
+                .iter_mut()
+                .for_each(|v| *v /= NOISE_FREE_EXPOSURE as f32);
+            *grey = effects.record(k, grey, seed);
+        }
+        label = format!("{label}; {}", effects.label());
+    }
+    let [left, right] = greys;
     Ok(StereoPair {
-        left: normalise_image(&grey_of(&lv.capture, lv.channels, w, h, channels[0])),
-        right: normalise_image(&grey_of(&rv.capture, rv.channels, w, h, channels[1])),
+        left: normalise_image(&left),
+        right: normalise_image(&right),
         disparity,
         kind: if homogeneous {
             PairKind::Homogeneous
@@ -266,6 +462,7 @@ fn render_pair(
     w: usize,
     h: usize,
     seed: u64,
+    effects: Option<&CameraEffects>,
 ) -> anaglyph_core::Result<(RenderedView, RenderedView, Vec<f32>)> {
     let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
     file.focal_length_px = Some(camera.focal_length_px);
@@ -284,6 +481,12 @@ fn render_pair(
             width: w,
             height: h,
             seed,
+            // With camera effects the pair records the noise-free light itself.
+            noise: match effects {
+                Some(_) => None,
+                None => SimulationSettings::default().noise,
+            },
+            vignetting: effects.map_or(0.0, |e| e.vignetting),
             ..SimulationSettings::default()
         },
     )?;
@@ -335,6 +538,7 @@ pub fn rig_pair(
         [Channel::Luminance; 2],
         camera.filters[0] == camera.filters[1],
         format!("{} vs {}", camera.filters[0], camera.filters[1]),
+        None,
     )
 }
 
@@ -529,6 +733,7 @@ const MAX_ATTEMPTS_PER_TRIPLET: usize = 1000;
 pub fn sample_triplets(
     groups: &[(&[StereoPair], f64)],
     batch: usize,
+    sampling: &Sampling,
     augmentation: &Augmentation,
     rng: &mut ChaCha8Rng,
 ) -> crate::Result<TripletBatch> {
@@ -572,9 +777,9 @@ pub fn sample_triplets(
         if !d.is_finite() {
             continue;
         }
-        let positive = symmetric(rng, POSITIVE_OFFSET);
-        let negative = rng.random_range(NEGATIVE_OFFSETS.0..=NEGATIVE_OFFSETS.1)
-            * if rng.random::<bool>() { 1.0 } else { -1.0 };
+        let positive = symmetric(rng, sampling.positive_offset);
+        let (near, far) = sampling.negative_offsets;
+        let negative = rng.random_range(near..=far) * if rng.random::<bool>() { 1.0 } else { -1.0 };
         let xr = x as f32 - d;
         let inside = |v: f32, size: usize| v >= margin && v <= size as f32 - 1.0 - margin;
         if !inside(x as f32, w)
@@ -602,4 +807,145 @@ pub fn sample_triplets(
         filled += 1;
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat(value: f32, w: usize, h: usize) -> GreyImage {
+        GreyImage {
+            channels: 1,
+            width: w,
+            height: h,
+            data: vec![value; w * h],
+        }
+    }
+
+    fn plain(exposure: f64, gamma: Option<f64>) -> CameraEffects {
+        let camera = CameraResponse {
+            defocus_sigma_px: 0.0,
+            prnu: 0.0,
+            noise: CameraNoise {
+                full_well_electrons: 5_000.0,
+                read_noise_electrons: 5.0,
+                bits: 12,
+                exposure,
+            },
+        };
+        CameraEffects {
+            vignetting: 0.0,
+            cameras: [camera; 2],
+            gamma,
+        }
+    }
+
+    fn mean_and_deviation(values: &[f32]) -> (f64, f64) {
+        let n = values.len() as f64;
+        let mean = values.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+        let var = values
+            .iter()
+            .map(|&v| (f64::from(v) - mean).powi(2))
+            .sum::<f64>()
+            / n;
+        (mean, var.sqrt())
+    }
+
+    #[test]
+    fn a_recording_has_the_cameras_exposure_noise_and_encoding() {
+        let clean = flat(0.5, 200, 100);
+        // Linear: the mean is the exposed signal, the spread the noise model's at it.
+        let effects = plain(0.4, None);
+        let linear = effects.record(0, &clean, 7);
+        let (mean, deviation) = mean_and_deviation(&linear.data);
+        assert!((mean - 0.2).abs() < 1e-3, "mean {mean}");
+        let sigma = effects.cameras[0].noise.sigma(0.5) * 0.4;
+        assert!(
+            (deviation / sigma - 1.0).abs() < 0.05,
+            "{deviation} vs {sigma}"
+        );
+        // Over-exposed: a white clips at full scale.
+        let bright = plain(1.6, None).record(1, &flat(1.0, 64, 64), 7);
+        assert!(bright.data.iter().all(|&v| v == 1.0));
+        // Gamma-encoded 8 bits: values on the 8-bit grid around the encoded mean.
+        let encoded = plain(0.4, Some(2.2)).record(0, &clean, 7);
+        assert!(encoded
+            .data
+            .iter()
+            .all(|&v| ((v * 255.0).round() - v * 255.0).abs() < 1e-3));
+        let (mean, _) = mean_and_deviation(&encoded.data);
+        let want = 0.2f64.powf(1.0 / 2.2);
+        assert!((mean - want).abs() < 3e-3, "mean {mean} against {want}");
+        // Defocus spreads the light before the noise: a bright column reaches its
+        // neighbours, by the Gaussian's weight at 1 px.
+        let blurred = CameraEffects {
+            cameras: [CameraResponse {
+                defocus_sigma_px: 1.5,
+                ..effects.cameras[0]
+            }; 2],
+            ..effects
+        };
+        let mut line = flat(0.0, 41, 200);
+        (0..200).for_each(|y| line.data[y * 41 + 20] = 1.0);
+        let spread = blurred.record(0, &line, 7);
+        let column = |x: usize| {
+            (0..200)
+                .map(|y| spread.data[y * 41 + x])
+                .collect::<Vec<_>>()
+        };
+        let (centre, _) = mean_and_deviation(&column(20));
+        let (beside, _) = mean_and_deviation(&column(21));
+        let (far, _) = mean_and_deviation(&column(30));
+        let ratio = beside / centre;
+        let want = (-0.5f64 / 1.5f64.powi(2)).exp();
+        assert!((ratio / want - 1.0).abs() < 0.1, "{ratio} against {want}");
+        assert!(far < 0.002, "{far}");
+        let uneven = CameraEffects {
+            cameras: [CameraResponse {
+                prnu: 0.02,
+                ..effects.cameras[0]
+            }; 2],
+            ..effects
+        };
+        let (_, spread) = mean_and_deviation(&uneven.record(0, &clean, 7).data);
+        let want = (deviation.powi(2) + (0.02f64 * 0.2).powi(2)).sqrt();
+        assert!(
+            (spread / want - 1.0).abs() < 0.05,
+            "{spread} against {want}"
+        );
+    }
+
+    #[test]
+    fn camera_effects_change_only_the_pairs_that_draw_them() {
+        let plain = PairSettings {
+            width: 64,
+            height: 48,
+            ..PairSettings::default()
+        };
+        let mixed = PairSettings {
+            camera_effects_share: 0.5,
+            ..plain
+        };
+        let (mut with, mut without) = (0, 0);
+        for seed in 0..8 {
+            let a = simulated_pair(seed, &plain).unwrap();
+            let b = simulated_pair(seed, &mixed).unwrap();
+            assert_eq!(a.disparity.len(), b.disparity.len());
+            assert!(a
+                .disparity
+                .iter()
+                .zip(&b.disparity)
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+            if b.label == a.label {
+                assert_eq!(a.left.data, b.left.data, "seed {seed}");
+                assert_eq!(a.right.data, b.right.data, "seed {seed}");
+                without += 1;
+            } else {
+                assert!(b.label.starts_with(&a.label), "{}", b.label);
+                assert_ne!(a.left.data, b.left.data, "seed {seed}");
+                with += 1;
+            }
+        }
+        assert!(with > 0 && without > 0, "{with} with, {without} without");
+    }
 }

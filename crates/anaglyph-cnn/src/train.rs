@@ -11,7 +11,7 @@
 use crate::checkpoint::Checkpoint;
 use crate::dataset::{
     channel_swap_pairs, sample_triplets, simulated_pairs, Augmentation, PairKind, PairSettings,
-    StereoPair, TripletBatch, PATCH,
+    Sampling, StereoPair, TripletBatch, PATCH,
 };
 use crate::model::MatchingNet;
 use crate::optimiser::AdamW;
@@ -48,6 +48,10 @@ pub struct TrainSettings {
     pub training_scenes: usize,
     pub validation_scenes: usize,
     pub pairs: PairSettings,
+    /// Where the triplets' right patches lie ([`Sampling::MC_CNN_KITTI`] in the recipes
+    /// before it was an option, absent from their checkpoints).
+    #[serde(default)]
+    pub sampling: Sampling,
     pub augmentation: Augmentation,
     pub validate_every: usize,
     /// Whether to add the channel-swapped texture pairs.
@@ -69,6 +73,7 @@ impl TrainSettings {
             training_scenes: 96,
             validation_scenes: 8,
             pairs: PairSettings::default(),
+            sampling: Sampling::MC_CNN_KITTI,
             augmentation: Augmentation::MC_CNN_KITTI,
             validate_every: 500,
             channel_swaps: true,
@@ -343,6 +348,8 @@ pub fn train_segment(
     let validation_batch = sample_triplets(
         &[(&validation, 1.0)],
         1024,
+        // One yardstick for every recipe's curve, whatever its own sampling.
+        &Sampling::MC_CNN_KITTI,
         &Augmentation::NONE,
         &mut validation_rng,
     )?;
@@ -388,6 +395,7 @@ pub fn train_segment(
         let batch = sample_triplets(
             &groups,
             settings.batch,
+            &settings.sampling,
             &settings.augmentation,
             &mut run.rng,
         )?;

@@ -2,7 +2,8 @@
 //! lower the loss, and write weights the inference path reads.
 
 use anaglyph_cnn::dataset::{
-    sample_triplets, simulated_pair, Augmentation, PairKind, PairSettings, StereoPair, PATCH,
+    sample_triplets, simulated_pair, Augmentation, PairKind, PairSettings, Sampling, StereoPair,
+    PATCH,
 };
 use anaglyph_cnn::train::to_inference;
 use anaglyph_cnn::{
@@ -255,6 +256,7 @@ fn triplets_put_the_positive_on_the_true_match() {
     let batch = sample_triplets(
         &[(std::slice::from_ref(&pair), 1.0)],
         256,
+        &Sampling::MC_CNN_KITTI,
         &Augmentation::NONE,
         &mut rng,
     )
@@ -291,6 +293,7 @@ fn sampling_from_pairs_without_usable_pixels_is_an_error_not_a_hang() {
     let result = sample_triplets(
         &[(std::slice::from_ref(&pair), 1.0)],
         8,
+        &Sampling::MC_CNN_KITTI,
         &Augmentation::NONE,
         &mut rng,
     );

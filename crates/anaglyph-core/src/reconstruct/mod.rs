@@ -324,6 +324,7 @@ fn reconstruct_frame(
     let calibrated = calibrate_array(rig, captures, settings, &mut log)?;
     // The grey captures judge this frame against the previous one and go to the next;
     // a single frame needs neither.
+    let clock = std::time::Instant::now();
     let greys = match previous.is_some() || hand_on {
         true => captures.grey_images(),
         false => Vec::new(),
@@ -342,6 +343,8 @@ fn reconstruct_frame(
         None if hand_on => (None, now.iter().map(|&i| i.clone()).collect()),
         None => (None, Vec::new()),
     };
+    log.timings
+        .push(("frame changes".to_string(), clock.elapsed().as_secs_f64()));
     settings.check_cancelled("registration")?;
     let registered = register_array(
         rig,

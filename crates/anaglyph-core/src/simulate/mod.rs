@@ -17,4 +17,6 @@ mod render;
 pub use contact_sheet::write_contact_sheet;
 pub use dark::{DarkSignal, DARK_FRAMES, MAX_DARK_LEVEL};
 pub use output::{write_simulation, write_simulation_frames};
-pub use render::{render_view, PoseJitter, RenderedView, Simulation, SimulationSettings};
+pub use render::{
+    render_view, PoseJitter, RenderedView, Simulation, SimulationSettings, NOISE_FREE_EXPOSURE,
+};

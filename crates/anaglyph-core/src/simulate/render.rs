@@ -52,6 +52,10 @@ pub struct SimulationSettings {
     pub dark: Option<DarkSignal>,
 }
 
+/// The exposure of noise-free captures (`noise: None`): a white reaches this share of
+/// full scale.
+pub const NOISE_FREE_EXPOSURE: f64 = 0.9;
+
 /// Largest vignetting the simulator renders (corners at 5 % of the centre).
 pub const MAX_VIGNETTING: f64 = 0.95;
 
@@ -301,7 +305,7 @@ impl Tracer<'_> {
             )
         });
         let Some(noise) = settings.noise else {
-            let exposure = 0.9;
+            let exposure = NOISE_FREE_EXPOSURE;
             let offset = |i: usize| offsets.get(i).copied().unwrap_or(0.0);
             let expose = |v: &[f64]| -> Vec<f32> {
                 v.iter()

@@ -72,14 +72,21 @@ impl<'a> PointCosts<'a> {
         )
     }
 
-    /// View `reference`'s costs at every pixel's disparity + [`HALF_STEPS`].
-    pub fn half_steps(&self, reference: usize, disparity: &[f32]) -> Vec<[f32; 4]> {
+    /// View `reference`'s costs at every pixel's disparity + [`HALF_STEPS`], those `needed`
+    /// ([`needed_half_steps`]; NaN where not).
+    pub fn half_steps(
+        &self,
+        reference: usize,
+        disparity: &[f32],
+        needed: &[[bool; 4]],
+    ) -> Vec<[f32; 4]> {
         half_step_costs(
             self.features,
             &self.neighbours,
             self.geometry,
             reference,
             disparity,
+            needed,
         )
     }
 
@@ -569,17 +576,69 @@ fn cost_at(
         .fold(f32::NAN, f32::min)
 }
 
-/// Every pixel's cost at its whole disparity + [`HALF_STEPS`] (NaN where unknown).
-/// `neighbours` holds every view's [`NeighbourProducts`].
+/// Every pixel's cost at its whole disparity + those of [`HALF_STEPS`] it `needed` (NaN
+/// where unknown or not needed). `neighbours` holds every view's [`NeighbourProducts`].
 fn half_step_costs(
     features: &[CompactFeatures],
     neighbours: &[NeighbourProducts],
     geometry: &ArrayGeometry,
     reference: usize,
     disparity: &[f32],
+    needed: &[[bool; 4]],
 ) -> Vec<[f32; 4]> {
     let kernel = DotKernel::for_channels(features[reference].channels);
-    half_step_costs_with(kernel, features, neighbours, geometry, reference, disparity)
+    half_step_costs_with(
+        kernel, features, neighbours, geometry, reference, disparity, needed,
+    )
+}
+
+/// Which of each pixel's [`HALF_STEPS`] [`half_step_subpixel`] may read with a window of
+/// `radius` over the whole disparities `disparity`: a pixel's own ±½ steps, and its −1½
+/// (+1½) step only where its window holds a disparity below (above) its own, as a pixel
+/// one less (more) reads it. A superset of what is read (a window holding d − 2 but not
+/// d − 1 still asks for −1½), from separable running minima and maxima; the steps left
+/// out are never read, so the fit is the same as with every step (on the tabletop at
+/// 320×240 about one pixel in nine needs an outer step).
+pub(super) fn needed_half_steps(
+    (w, h): (usize, usize),
+    disparity: &[f32],
+    radius: usize,
+) -> Vec<[bool; 4]> {
+    // Per pixel, the least and greatest finite disparity of its row segment, then of its
+    // window.
+    let mut rows = vec![(f32::INFINITY, f32::NEG_INFINITY); w * h];
+    rows.par_chunks_mut(w.max(1))
+        .zip(disparity.par_chunks(w.max(1)))
+        .for_each(|(out, row)| {
+            for (x, slot) in out.iter_mut().enumerate() {
+                let segment = &row[x.saturating_sub(radius)..(x + radius + 1).min(w)];
+                *slot = segment
+                    .iter()
+                    .filter(|d| d.is_finite())
+                    .fold(*slot, |(lo, hi), &d| (lo.min(d), hi.max(d)));
+            }
+        });
+    let mut needed = vec![[false; 4]; w * h];
+    needed
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, out)| {
+            let column_rows = y.saturating_sub(radius)..(y + radius + 1).min(h);
+            for (x, slot) in out.iter_mut().enumerate() {
+                let d = disparity[y * w + x];
+                if !d.is_finite() {
+                    continue;
+                }
+                let (lo, hi) = column_rows
+                    .clone()
+                    .map(|yy| rows[yy * w + x])
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), (lo, hi)| {
+                        (a.min(lo), b.max(hi))
+                    });
+                *slot = [lo <= d - 1.0, true, true, hi >= d + 1.0];
+            }
+        });
+    needed
 }
 
 /// Every view's [`NeighbourProducts`], with the given build of the dot products.
@@ -606,6 +665,7 @@ fn half_step_costs_with(
     geometry: &ArrayGeometry,
     reference: usize,
     disparity: &[f32],
+    needed: &[[bool; 4]],
 ) -> Vec<[f32; 4]> {
     let fr = &features[reference];
     let w = fr.width;
@@ -620,17 +680,18 @@ fn half_step_costs_with(
             columns: 0..w,
         };
         let disparity = &disparity[y * w..(y + 1) * w];
+        let steps = (disparity, &needed[y * w..(y + 1) * w]);
         match kernel {
             // SAFETY: the CPU supports AVX-512F and AVX-512 BF16, and the features have
             // 16 or a multiple of 32 channels (checked by `for_channels`).
             #[cfg(target_arch = "x86_64")]
             DotKernel::Avx512Bf16 => unsafe {
-                half_step_row_avx512_bf16(&job, neighbours, disparity, row)
+                half_step_row_avx512_bf16(&job, neighbours, steps, row)
             },
             // SAFETY: the CPU supports AVX2 and FMA (checked by `for_channels`).
             #[cfg(target_arch = "x86_64")]
-            DotKernel::Avx2 => unsafe { half_step_row_avx2(&job, neighbours, disparity, row) },
-            _ => half_step_row(&job, neighbours, disparity, row, dot),
+            DotKernel::Avx2 => unsafe { half_step_row_avx2(&job, neighbours, steps, row) },
+            _ => half_step_row(&job, neighbours, steps, row, dot),
         }
     });
     out
@@ -641,16 +702,18 @@ fn half_step_costs_with(
 fn half_step_row(
     job: &RowJob<'_>,
     neighbours: &[NeighbourProducts],
-    disparity: &[f32],
+    (disparity, needed): (&[f32], &[[bool; 4]]),
     row: &mut [[f32; 4]],
     product: impl Fn(&[u16], &[u16]) -> f32 + Copy,
 ) {
-    for (x, (costs, &d)) in row.iter_mut().zip(disparity).enumerate() {
+    for (x, ((costs, &d), needs)) in row.iter_mut().zip(disparity).zip(needed).enumerate() {
         if !d.is_finite() {
             continue;
         }
-        for (slot, offset) in costs.iter_mut().zip(HALF_STEPS) {
-            *slot = cost_at(job, neighbours, x, d as f64 + offset, product);
+        for ((slot, offset), &need) in costs.iter_mut().zip(HALF_STEPS).zip(needs) {
+            if need {
+                *slot = cost_at(job, neighbours, x, d as f64 + offset, product);
+            }
         }
     }
 }
@@ -665,10 +728,10 @@ fn half_step_row(
 unsafe fn half_step_row_avx2(
     job: &RowJob<'_>,
     neighbours: &[NeighbourProducts],
-    disparity: &[f32],
+    steps: (&[f32], &[[bool; 4]]),
     row: &mut [[f32; 4]],
 ) {
-    half_step_row(job, neighbours, disparity, row, dot)
+    half_step_row(job, neighbours, steps, row, dot)
 }
 
 /// [`half_step_row`] with [`dot_avx512_bf16`] (features of 16 or a multiple of 32 channels).
@@ -677,12 +740,10 @@ unsafe fn half_step_row_avx2(
 fn half_step_row_avx512_bf16(
     job: &RowJob<'_>,
     neighbours: &[NeighbourProducts],
-    disparity: &[f32],
+    steps: (&[f32], &[[bool; 4]]),
     row: &mut [[f32; 4]],
 ) {
-    half_step_row(job, neighbours, disparity, row, |a, b| {
-        dot_avx512_bf16(a, b)
-    })
+    half_step_row(job, neighbours, steps, row, |a, b| dot_avx512_bf16(a, b))
 }
 
 /// Per pixel, its costs in `raw` at its whole disparity − 2 … + 2 (NaN outside the
@@ -853,7 +914,8 @@ mod tests {
         let volume = multi_view_cost_volume(&features, &geometry, 0, range);
         let whole = winner_take_all(&volume);
         let neighbours = neighbour_products(DotKernel::Portable, &features);
-        let half = half_step_costs(&features, &neighbours, &geometry, 0, &whole);
+        let every = vec![[true; 4]; w * h];
+        let half = half_step_costs(&features, &neighbours, &geometry, 0, &whole, &every);
         let steps = whole_steps(&volume, &whole);
         let fine = half_step_subpixel((w, h), &steps, &half, &whole, 3);
         let coarse = crate::stereo::windowed_subpixel(&volume, &whole, 3);
@@ -871,6 +933,69 @@ mod tests {
             fine[i],
             coarse[i]
         );
+    }
+
+    /// The half steps [`needed_half_steps`] leaves out are never read: the fit over maps
+    /// with steps, edges and holes is bit for bit the fit with every half step.
+    #[test]
+    fn the_needed_half_steps_give_the_fit_of_every_step() {
+        let (w, h, c) = (48usize, 30usize, 16usize);
+        let geometry = ArrayGeometry::grid(2, 4, 5.0 / 3.0);
+        let mut state = 4242u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
+        };
+        let features: Vec<CompactFeatures> = (0..geometry.len())
+            .map(|_| {
+                let data: Vec<f32> = (0..w * h * c).map(|_| next()).collect();
+                CompactFeatures::from(FeatureMap {
+                    width: w,
+                    height: h,
+                    channels: c,
+                    data,
+                })
+            })
+            .collect();
+        let reference = 1;
+        let range = DisparityRange::new(-2, 6).unwrap();
+        let volume = multi_view_cost_volume(&features, &geometry, reference, range);
+        // Plateaus one and two apart, a ramp, and holes.
+        let disparity: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                match (x, y) {
+                    (_, 0..=9) if x < 20 => 1.0,
+                    (_, 0..=9) => 3.0,
+                    (_, 10..=19) => (x / 8) as f32 - 1.0,
+                    _ if (x + y) % 11 == 0 => f32::NAN,
+                    _ => 2.0 + ((x / 13) % 2) as f32,
+                }
+            })
+            .collect();
+        let whole = whole_steps(&volume, &disparity);
+        let neighbours = neighbour_products(DotKernel::Portable, &features);
+        let radius = 3;
+        let needed = needed_half_steps((w, h), &disparity, radius);
+        let left_out = needed.iter().flatten().filter(|&&n| !n).count();
+        assert!(left_out > w * h / 2, "only {left_out} half steps left out");
+        let fit = |needed: &[[bool; 4]]| {
+            let half = half_step_costs_with(
+                DotKernel::Portable,
+                &features,
+                &neighbours,
+                &geometry,
+                reference,
+                &disparity,
+                needed,
+            );
+            half_step_subpixel((w, h), &whole, &half, &disparity, radius)
+        };
+        let every = fit(&vec![[true; 4]; w * h]);
+        let some = fit(&needed);
+        for (i, (a, b)) in every.iter().zip(&some).enumerate() {
+            assert_eq!(a.to_bits(), b.to_bits(), "pixel {i}: {a} against {b}");
+        }
     }
 
     /// Every build of the dot products this CPU runs gives the portable build's costs, on
@@ -930,6 +1055,7 @@ mod tests {
             &geometry,
             reference,
             &disparity,
+            &vec![[true; 4]; w * h],
         );
         for &kernel in &kernels {
             let volume = cost_volume_with(kernel, &features, &geometry, reference, range, whole());
@@ -972,6 +1098,7 @@ mod tests {
                 &geometry,
                 reference,
                 &disparity,
+                &vec![[true; 4]; w * h],
             );
             let worst = half
                 .iter()

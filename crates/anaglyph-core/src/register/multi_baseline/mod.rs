@@ -63,7 +63,7 @@ use crate::stereo::{
     MatchingCost, MatchingNetwork,
 };
 use crate::{Error, Result};
-use cost::{half_step_subpixel, whole_steps, PointCosts};
+use cost::{half_step_subpixel, needed_half_steps, whole_steps, PointCosts};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::time::Instant;
@@ -119,6 +119,15 @@ const FINE_SIGNALS: usize = 1;
 /// with 16, the registered stacks' PSNR 44.10 dB with all three, and the peak 3.6, 2.4
 /// and 1.9 GB.
 const FINE_DIMS: usize = 16;
+
+/// Matching images a reused frame's small views of cameras with several channels compare
+/// by (the leading common signals; one-channel cameras' are one image up to sign, and
+/// large views take [`FINE_SIGNALS`]). On the paper's rig at 320×240 (tabletop-moving,
+/// frames 1 to 7) a reused frame took 2.86 s with two, 3.01 s with all three and 2.48 s
+/// with one, and its reference view scored 0.14 to 0.23 dB above the frame alone with
+/// two, 0.09 to 0.19 dB with three, and up to 0.23 dB below it with one
+/// (docs/sequence.md).
+const REUSED_SIGNALS: usize = 2;
 
 /// Views of at least this many pixels are registered coarse to fine by default
 /// ([`CoarseToFine::Auto`]): a 1600×1200 view (1.9 Mpx), not an 800×600 one.
@@ -210,12 +219,12 @@ fn around_previous(
     // to tell apart: with the fine level's dimensions a reused frame at 320×240 took 2.58
     // instead of 3.66 s on the 3×3 array and 3.25 instead of 3.97 s on the paper's rig
     // (medians of the first 8 frames), up to 0.2 dB below the full features' and never
-    // 0.3 dB below the frame alone (docs/sequence.md). Where the views are small and their matching images differ
-    // (cameras of several channels) every one is kept: the leading one alone cost the
-    // paper's rig 0.2 to 0.3 dB.
+    // 0.3 dB below the frame alone (docs/sequence.md). Where the views are small and
+    // their matching images differ (cameras of several channels) the leading two are
+    // kept ([`REUSED_SIGNALS`]).
     let signals = match large || images.iter().all(matching_up_to_sign) {
         true => FINE_SIGNALS,
-        false => usize::MAX,
+        false => REUSED_SIGNALS,
     };
     let features = view_features(network, images, signals, Some(FINE_DIMS))?;
     let costs = PointCosts::new(&features, geometry);
@@ -731,7 +740,8 @@ fn subpixel_map(
     disparity: &[f32],
 ) -> DisparityMap {
     let size = costs.size();
-    let half = costs.half_steps(i, disparity);
+    let needed = needed_half_steps(size, disparity, SUBPIXEL_WINDOW_RADIUS);
+    let half = costs.half_steps(i, disparity, &needed);
     DisparityMap {
         width: size.0,
         height: size.1,
