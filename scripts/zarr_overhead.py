@@ -1,11 +1,12 @@
 """What writing a Zarr store costs per frame: `anaglyph.reconstruct_frames` of FRAMES
-frames of the tabletop (the paper's rig, its field of view kept; a new noise seed per
-frame) at WxH into a store, with cubes and registered stacks (`output="both"`, the most a
-frame writes). Prints per frame the call's time and the store's share of it, then the
-median share and the store's size.
+frames of the moving tabletop (`tabletop-moving` through the paper's rig, its field of
+view kept) at WxH into a store, with temporal reuse, writing OUTPUT (default `both`: cubes
+and registered stacks, the most a frame writes; `reflectance` for cubes alone). Prints
+per frame the call's time and the store's share of it, then the median share and the
+store's size.
 
     pip install ./crates/anaglyph-py
-    python scripts/zarr_overhead.py [FRAMES] [WxH]
+    python scripts/zarr_overhead.py [FRAMES] [WxH] [OUTPUT]
 """
 
 from __future__ import annotations
@@ -31,12 +32,18 @@ def scaled_rig(width: int) -> anaglyph.Rig:
 def main() -> None:
     frames = int(sys.argv[1]) if len(sys.argv) > 1 else 5
     width, height = map(int, (sys.argv[2] if len(sys.argv) > 2 else "320x240").split("x"))
+    output = sys.argv[3] if len(sys.argv) > 3 else "both"
     rig = scaled_rig(width)
-    sims = [anaglyph.simulate("tabletop", rig=rig, size=(width, height), seed=s) for s in range(frames)]
-    clip = {s: sim.captures for s, sim in enumerate(sims)}
+    sims = [
+        anaglyph.simulate("tabletop-moving", rig=rig, size=(width, height), seed=1, frame=k)
+        for k in range(frames)
+    ]
+    clip = {k: sim.captures for k, sim in enumerate(sims)}
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "clip.zarr"
-        run = anaglyph.reconstruct_frames(rig, clip, whites=sims[0].whites, output="both", store=store, progress=False)
+        run = anaglyph.reconstruct_frames(
+            rig, clip, whites=sims[0].whites, output=output, store=store, progress=False
+        )
         shares = []
         for r in run.frames:
             share = r.store_seconds / r.seconds
@@ -44,7 +51,7 @@ def main() -> None:
             print(f"frame {r.frame}: {r.seconds:.2f} s, store {r.store_seconds:.3f} s ({100 * share:.1f} %)")
         size = sum(f.stat().st_size for f in store.rglob("*") if f.is_file())
         print(
-            f"{width}x{height}, {frames} frames: median store share {100 * statistics.median(shares):.1f} % "
+            f"{width}x{height}, {frames} frames, {output}: median store share {100 * statistics.median(shares):.1f} % "
             f"of a frame; store {size / 2**20:.1f} MiB"
         )
 
