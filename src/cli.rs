@@ -175,8 +175,8 @@ pub struct TrainArgs {
     pub camera_effects_share: Option<f64>,
     /// Distance of a triplet's negative patch from the true match, NEAR:FAR px, either
     /// side [default: 4:10, MC-CNN's KITTI values].
-    #[arg(long, value_name = "NEAR:FAR")]
-    pub negatives: Option<String>,
+    #[arg(long, value_name = "NEAR:FAR", value_parser = parse_negatives)]
+    pub negatives: Option<(f32, f32)>,
     /// Largest distance of a triplet's positive patch from the true match, px [default: 1].
     #[arg(long)]
     pub positive_offset: Option<f32>,
@@ -557,6 +557,19 @@ fn parse_signed_search_range(text: &str) -> Result<DisparitySearch, String> {
         return Ok(DisparitySearch::Auto);
     }
     parse_disparity_range(text).map(DisparitySearch::Fixed)
+}
+
+/// `--negatives NEAR:FAR`: 0 < NEAR <= FAR <= 64 px.
+fn parse_negatives(text: &str) -> Result<(f32, f32), String> {
+    let parsed = text
+        .split_once(':')
+        .and_then(|(a, b)| Some((a.trim().parse::<f32>().ok()?, b.trim().parse::<f32>().ok()?)));
+    match parsed {
+        Some((near, far)) if near > 0.0 && near <= far && far <= 64.0 => Ok((near, far)),
+        _ => Err(format!(
+            "'{text}' (expected NEAR:FAR in pixels with 0 < NEAR <= FAR <= 64, e.g. 4:10)"
+        )),
+    }
 }
 
 fn parse_disparity_range(text: &str) -> Result<DisparityRange, String> {

@@ -261,8 +261,8 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
         }
         settings.sampling.positive_offset = offset;
     }
-    if let Some(text) = &args.negatives {
-        settings.sampling.negative_offsets = negatives(text)?;
+    if let Some(negatives) = args.negatives {
+        settings.sampling.negative_offsets = negatives;
     }
     let sampling = settings.sampling;
     if sampling.negative_offsets.0 <= sampling.positive_offset {
@@ -275,19 +275,6 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
         );
     }
     Ok(settings)
-}
-
-/// `--negatives NEAR:FAR`: 0 < NEAR ≤ FAR ≤ 64 px.
-fn negatives(text: &str) -> anyhow::Result<(f32, f32)> {
-    let parsed = text
-        .split_once(':')
-        .and_then(|(a, b)| Some((a.trim().parse::<f32>().ok()?, b.trim().parse::<f32>().ok()?)));
-    match parsed {
-        Some((near, far)) if near > 0.0 && near <= far && far <= 64.0 => Ok((near, far)),
-        _ => anyhow::bail!(
-            "--negatives {text}: expected NEAR:FAR in pixels with 0 < NEAR <= FAR <= 64 (e.g. 4:10)"
-        ),
-    }
 }
 
 /// `anaglyph train` with every recipe option spelled out, and the outputs.
@@ -392,10 +379,7 @@ fn recipe_of_checkpoint(
         ),
         (
             "--negatives",
-            args.negatives
-                .as_deref()
-                .map(|t| negatives(t).map(|(a, b)| format!("{a}:{b}")))
-                .transpose()?,
+            args.negatives.map(|(near, far)| format!("{near}:{far}")),
             format!(
                 "{}:{}",
                 saved.sampling.negative_offsets.0, saved.sampling.negative_offsets.1

@@ -117,7 +117,7 @@ fn a_run_in_two_segments_writes_the_weights_of_the_run_made_at_once() {
         "--camera-effects-share -0.1: expected a share in [0, 1]",
     );
     let o = anaglyph(&["train", "--out", "x", "--negatives", "6"], d);
-    assert_clean_failure(&o, "--negatives 6: expected NEAR:FAR in pixels");
+    assert_clean_failure(&o, "'6' (expected NEAR:FAR in pixels");
     let o = anaglyph(&["train", "--out", "x", "--negatives", "0.5:6"], d);
     assert_clean_failure(
         &o,

@@ -182,6 +182,7 @@ pub const EXPOSURE: (f64, f64) = (0.05, 1.6);
 /// datasets are), with a gamma drawn uniformly from [`GAMMA`]; the others stay linear at
 /// 12 bits.
 pub const GAMMA_ENCODED_SHARE: f64 = 0.5;
+/// The gammas of gamma-encoded pairs, drawn uniformly.
 pub const GAMMA: (f64, f64) = (1.8, 2.4);
 
 /// How one camera of a pair records its image.
