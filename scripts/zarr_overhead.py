@@ -1,19 +1,24 @@
 """What writing a Zarr store costs per frame: `anaglyph.reconstruct_frames` of FRAMES
 frames of the moving tabletop (`tabletop-moving` through the paper's rig, its field of
-view kept) at WxH into a store, with temporal reuse, writing OUTPUT (default `both`: cubes
-and registered stacks, the most a frame writes; `reflectance` for cubes alone). Prints
-per frame the call's time and the store's share of it, then the median share and the
-store's size.
+view kept) at WxH, with temporal reuse, writing OUTPUT (default `both`: cubes and
+registered stacks, the most a frame writes; `cube` for cubes alone) into a store, against
+the same run returning its arrays instead (no store), alternately, REPEATS times each
+(default 2). Each frame's write runs on a thread of its own while the next frame is
+computed; prints per frame of the last run with the store the call's time, the write's
+time on its thread and how long the next frame waited for it, then each run's wall time,
+and the store's cost: the median run with it against the median run without.
 
     pip install ./crates/anaglyph-py
-    python scripts/zarr_overhead.py [FRAMES] [WxH] [OUTPUT]
+    python scripts/zarr_overhead.py [FRAMES] [WxH] [OUTPUT] [REPEATS]
 """
 
 from __future__ import annotations
 
+import shutil
 import statistics
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import anaglyph
@@ -39,20 +44,35 @@ def main() -> None:
         for k in range(frames)
     ]
     clip = {k: sim.captures for k, sim in enumerate(sims)}
+    repeats = int(sys.argv[4]) if len(sys.argv) > 4 else 2
+    walls: dict[str, list[float]] = {"store": [], "arrays": []}
     with tempfile.TemporaryDirectory() as tmp:
-        store = Path(tmp) / "clip.zarr"
-        run = anaglyph.reconstruct_frames(
-            rig, clip, whites=sims[0].whites, output=output, store=store, progress=False
-        )
-        shares = []
-        for r in run.frames:
-            share = r.store_seconds / r.seconds
-            shares.append(share)
-            print(f"frame {r.frame}: {r.seconds:.2f} s, store {r.store_seconds:.3f} s ({100 * share:.1f} %)")
-        size = sum(f.stat().st_size for f in store.rglob("*") if f.is_file())
+        for repeat in range(repeats):
+            for kind in walls:
+                store = Path(tmp) / f"clip-{repeat}.zarr" if kind == "store" else None
+                started = time.perf_counter()
+                run = anaglyph.reconstruct_frames(
+                    rig, clip, whites=sims[0].whites, output=output, store=store, progress=False
+                )
+                walls[kind].append(time.perf_counter() - started)
+                if store is not None:
+                    reports, size = run.frames, sum(f.stat().st_size for f in store.rglob("*") if f.is_file())
+                    shutil.rmtree(store)
+                del run
+        for r in reports:
+            print(
+                f"frame {r.frame}: {r.seconds:.2f} s, its write {r.store_seconds:.3f} s, "
+                f"waited for {r.store_wait_seconds:.3f} s"
+            )
+        for kind, values in walls.items():
+            print(f"{kind}: " + ", ".join(f"{v:.2f} s" for v in values))
+        with_store, without = statistics.median(walls["store"]), statistics.median(walls["arrays"])
         print(
-            f"{width}x{height}, {frames} frames, {output}: median store share {100 * statistics.median(shares):.1f} % "
-            f"of a frame; store {size / 2**20:.1f} MiB"
+            f"{width}x{height}, {frames} frames, {output}: {with_store:.2f} s with the store, "
+            f"{without:.2f} s without ({100 * (with_store / without - 1):+.1f} %); "
+            f"median write {statistics.median(r.store_seconds for r in reports):.3f} s, "
+            f"median wait {statistics.median(r.store_wait_seconds for r in reports):.3f} s; "
+            f"store {size / 2**20:.1f} MiB"
         )
 
 

@@ -5,7 +5,7 @@
 use super::{begin_output, format_seconds, optional_curve, rig_inputs};
 use crate::cli::{ReconstructArgs, ViewList};
 use anaglyph_core::disparity::{DisparityConvention, DisparityMap};
-use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore};
+use anaglyph_core::io::{read_pfm, verify_output_subfolder, LightFieldStore, PendingWrite};
 use anaglyph_core::reconstruct::{
     reconstruct_next, reconstruct_streaming, ArrayCaptures, Disparities, FrameCarry, FrameFiles,
     FrameSequence, LightField, LightFieldWriter, OutputOptions, PipelineSettings,
@@ -367,6 +367,9 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
     // What the last frame computed hands to the next (temporal reuse).
     let mut carry: Option<FrameCarry> = None;
     let mut reused = ReuseTally::default();
+    // The last frame's write, on a thread of its own while the next frame is computed
+    // (waited for before the next write; dropped on an error, it still ends).
+    let mut pending: Option<PendingWrite> = None;
     for ((frame, &number), done) in frames.iter().zip(&numbers).zip(done) {
         if done {
             // The next frame computed follows a gap: nothing to carry over it.
@@ -398,9 +401,18 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
                 });
             }
         }
-        seconds.push(clock.elapsed().as_secs_f64());
-        store.write_frame(number, &field, clock.elapsed().as_secs_f64())?;
+        let frame_seconds = clock.elapsed().as_secs_f64();
+        seconds.push(frame_seconds);
+        if let Some(write) = pending.take() {
+            let frame = write.frame();
+            write.wait().with_context(|| format!("frame {frame}"))?;
+        }
+        pending = Some(store.write_frame_in_background(number, field, frame_seconds)?);
         bar.inc(1);
+    }
+    if let Some(write) = pending.take() {
+        let frame = write.frame();
+        write.wait().with_context(|| format!("frame {frame}"))?;
     }
     bar.finish_and_clear();
     if request.temporal_reuse && seconds.len() > 1 {

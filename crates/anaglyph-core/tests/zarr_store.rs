@@ -181,3 +181,69 @@ fn stores_of_other_runs_files_and_foreign_folders_are_refused() {
         .collect();
     assert!(names.iter().all(|n| !n.starts_with('.')), "{names:?}");
 }
+
+/// Every file under `dir` (relative path, bytes), sorted.
+fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(folder) = stack.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let name = path.strip_prefix(dir).unwrap().display().to_string();
+                out.push((name, std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn frames_written_in_the_background_are_the_frames_written_in_place() {
+    let mut file = Rig::paper_rig_file(&PAPER_RIG_FILTERS);
+    file.focal_length_px = Some(180.0);
+    let rig = Rig::from_file(file, ".".into()).unwrap();
+    let fields = [frame(&rig, 1), frame(&rig, 2)];
+    let dir = tempfile::tempdir().unwrap();
+    let (in_place, background) = (dir.path().join("a.zarr"), dir.path().join("b.zarr"));
+    let store = |path: &Path| {
+        LightFieldStore::create(path, layout(&fields[0], vec![10, 11], "a"), false).unwrap()
+    };
+    let a = store(&in_place);
+    a.write_frame(10, &fields[0], 1.5).unwrap();
+    a.write_frame(11, &fields[1], 2.5).unwrap();
+    let b = store(&background);
+    let first = b
+        .write_frame_in_background(10, fields[0].clone(), 1.5)
+        .unwrap();
+    assert_eq!(first.frame(), 10);
+    let second = b
+        .write_frame_in_background(11, fields[1].clone(), 2.5)
+        .unwrap();
+    assert!(first.wait().unwrap() > 0.0);
+    // Dropped without waiting, a write still ends before the drop returns.
+    drop(second);
+    assert_eq!(b.frames_done().unwrap(), vec![true, true]);
+    let (expected, got) = (files(&in_place), files(&background));
+    assert_eq!(expected.len(), got.len());
+    for ((name, bytes), (other, others)) in expected.iter().zip(&got) {
+        assert_eq!(name, other);
+        assert!(bytes == others, "{name} differs");
+    }
+    // What the store cannot take is refused before any thread starts.
+    let missing = b
+        .write_frame_in_background(12, fields[0].clone(), 1.5)
+        .unwrap_err()
+        .to_string();
+    assert!(missing.contains("10 to 11"), "{missing}");
+    let mut partial = fields[0].clone();
+    partial.views.truncate(3);
+    let views = b
+        .write_frame_in_background(10, partial, 1.5)
+        .unwrap_err()
+        .to_string();
+    assert!(views.contains("r0c3"), "{views}");
+}

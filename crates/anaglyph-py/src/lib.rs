@@ -49,6 +49,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     m.add_class::<rig::Rig>()?;
     m.add_class::<reconstruct::FrameCarry>()?;
+    m.add_class::<reconstruct::PendingWrite>()?;
     m.add_function(wrap_pyfunction!(choices, m)?)?;
     m.add_function(wrap_pyfunction!(compute::set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(compute::get_num_threads, m)?)?;

@@ -9,7 +9,7 @@ use anaglyph_core::choice::Choice;
 use anaglyph_core::demux::Solver;
 use anaglyph_core::disparity::DisparityRange;
 use anaglyph_core::image::Image;
-use anaglyph_core::io::{read_linear_image, LightFieldStore};
+use anaglyph_core::io::{read_linear_image, LightFieldStore, PendingWrite as CorePendingWrite};
 use anaglyph_core::reconstruct::{
     reconstruct as core_reconstruct, reconstruct_next, ArrayCaptures, CameraCapture, Dark,
     DisparitySearch, FrameCarry as CoreFrameCarry, FrameLayout, FrameRange, FrameSequence, Preset,
@@ -226,6 +226,33 @@ pub struct FrameCarry {
     inner: CoreFrameCarry,
 }
 
+/// A frame being written into a store on a thread of its own while the next frame is
+/// computed (`anaglyph.reconstruct_frames` hands it to the next frame's call, which waits
+/// for it before its own write; `wait()` for the last one). Dropped, it still waits for
+/// the write to end.
+#[pyclass(module = "anaglyph._core", frozen)]
+pub struct PendingWrite {
+    inner: Mutex<Option<CorePendingWrite>>,
+}
+
+impl PendingWrite {
+    fn take(&self) -> Option<CorePendingWrite> {
+        self.inner.lock().ok().and_then(|mut slot| slot.take())
+    }
+}
+
+#[pymethods]
+impl PendingWrite {
+    /// Waits for the write to end: the seconds it took on its thread (0 when it was
+    /// already waited for); its error is raised.
+    fn wait(&self, py: Python<'_>) -> PyResult<f64> {
+        match self.take() {
+            Some(write) => py.detach(move || write.wait()).py(),
+            None => Ok(0.0),
+        }
+    }
+}
+
 /// Reconstructs the light field of `captures` (see the Python wrapper's docs). The
 /// keyword arguments fill the core's `ReconstructOptions`, the CLI's options by the same
 /// names; `tuning` is a JSON object of its `SolveTuning` fields.
@@ -237,7 +264,8 @@ pub struct FrameCarry {
                     white_reflectance=None,
                     saturation=None, tuning=None, progress=None, store=None, frame=0,
                     frames=None, overwrite=false, arrays=true, skip_done=false,
-                    create_only=false, reuse=true, previous=None, frame_darks=None))]
+                    create_only=false, reuse=true, previous=None, frame_darks=None,
+                    background_write=false, previous_write=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
     py: Python<'py>,
@@ -271,6 +299,8 @@ pub fn reconstruct<'py>(
     reuse: bool,
     previous: Option<&FrameCarry>,
     frame_darks: Option<&Bound<'py, PyDict>>,
+    background_write: bool,
+    previous_write: Option<&PendingWrite>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let started = std::time::Instant::now();
     let in_sequence = frames.is_some();
@@ -326,7 +356,22 @@ pub fn reconstruct<'py>(
             }
         });
     };
+    // The previous frame's write, waited for before this frame's (or as the frame is
+    // skipped): its seconds on its thread and the seconds this call waited for it.
+    let previous_write = previous_write.and_then(PendingWrite::take);
+    let previous_store: Mutex<Option<(f64, f64)>> = Mutex::new(None);
+    let finish_previous = |write: Option<CorePendingWrite>| -> anaglyph_core::Result<()> {
+        if let Some(write) = write {
+            let clock = std::time::Instant::now();
+            let seconds = write.wait()?;
+            if let Ok(mut slot) = previous_store.lock() {
+                *slot = Some((seconds, clock.elapsed().as_secs_f64()));
+            }
+        }
+        Ok(())
+    };
     let outcome = run_cancellable(py, Some(&cancel), || {
+        let mut previous_write = previous_write;
         let network = options.network()?;
         let mut settings = options.settings(network.as_ref())?;
         settings.cancel = Some(&cancel);
@@ -344,6 +389,7 @@ pub fn reconstruct<'py>(
                     *slot = Some(done);
                 }
                 if skip {
+                    finish_previous(previous_write.take())?;
                     return Ok(None);
                 }
                 Some(store)
@@ -360,21 +406,32 @@ pub fn reconstruct<'py>(
         } else {
             (core_reconstruct(rig, &captures, &settings, &report)?, None)
         };
-        let writing = std::time::Instant::now();
-        if let Some(store) = &store {
-            let seconds = loading_seconds + computing.elapsed().as_secs_f64();
-            store.write_frame(frame, &field, seconds)?;
-        }
-        let writing_seconds = writing.elapsed().as_secs_f64();
+        let seconds = loading_seconds + computing.elapsed().as_secs_f64();
         let mut parameters = options.record(&settings, rig);
         if let Some(record) = parameters.as_object_mut() {
             record.insert("interface".into(), "python".into());
         }
         let mut manifest = field.manifest(parameters, loading_seconds)?;
-        if store.is_some() {
-            manifest["store_seconds"] = writing_seconds.into();
+        finish_previous(previous_write.take())?;
+        let mut pending = None;
+        match &store {
+            // The field goes to the write; Python gets no arrays of it, only its summary.
+            Some(store) if background_write => {
+                let mut field = field;
+                let views = std::mem::take(&mut field.views);
+                let summary = field.clone();
+                field.views = views;
+                pending = Some(store.write_frame_in_background(frame, field, seconds)?);
+                return Ok(Some((summary, manifest, carry, pending)));
+            }
+            Some(store) => {
+                let writing = std::time::Instant::now();
+                store.write_frame(frame, &field, seconds)?;
+                manifest["store_seconds"] = writing.elapsed().as_secs_f64().into();
+            }
+            None => {}
         }
-        Ok(Some((field, manifest, carry)))
+        Ok(Some((field, manifest, carry, pending)))
     });
     if let Some(e) = callback_error.lock().ok().and_then(|mut slot| slot.take()) {
         return Err(e);
@@ -383,13 +440,23 @@ pub fn reconstruct<'py>(
     if let Some(done) = frames_done.lock().ok().and_then(|mut slot| slot.take()) {
         out.set_item("frames_done", done)?;
     }
-    let Some((field, manifest, carry)) = outcome? else {
+    if let Some((seconds, waited)) = previous_store.lock().ok().and_then(|mut slot| slot.take()) {
+        out.set_item("previous_store_seconds", seconds)?;
+        out.set_item("previous_store_wait_seconds", waited)?;
+    }
+    let Some((field, manifest, carry, pending)) = outcome? else {
         out.set_item("skipped", true)?;
         return Ok(out);
     };
     out.set_item("skipped", false)?;
     if let Some(carry) = carry {
         out.set_item("carry", FrameCarry { inner: carry })?;
+    }
+    if let Some(pending) = pending {
+        let pending = PendingWrite {
+            inner: Mutex::new(Some(pending)),
+        };
+        out.set_item("pending_write", Py::new(py, pending)?)?;
     }
     let (w, h, bands) = (field.width, field.height, field.bands.len());
     let views = PyDict::new(py);

@@ -36,7 +36,7 @@ pub use output_folder::{
     VerifiedFolder, MANIFEST,
 };
 pub use pfm::{read_pfm, write_pfm, PfmImage};
-pub use zarr_store::{LightFieldStore, StoreLayout};
+pub use zarr_store::{LightFieldStore, PendingWrite, StoreLayout};
 
 /// Largest raster (pixels × channels) any reader allocates: 2^31 values (8 GiB of f32).
 pub const MAX_RASTER_VALUES: u64 = 1 << 31;

@@ -14,10 +14,12 @@
 //!   frame, view, wavelength, channel   1-D coordinates (int64, string, float64 nm, string)
 //! ```
 //!
-//! Every array is sharded with one shard per frame and view (zstd-compressed inner chunks
-//! that tile it, about 200 pixels a side on large images; crc32c-checked index), so frames
-//! are written
-//! independently, by one process or by many. [`LightFieldStore::create`] writes the
+//! Every per-pixel array holds one object per frame and view, so frames are written
+//! independently, by one process or by many: a shard of zstd-compressed inner chunks that
+//! tile it (about 200 pixels a side; crc32c-checked index) where a side is longer than
+//! 512 px, else one zstd-compressed chunk (such a shard would hold one inner chunk, and
+//! its encoding copies a 320×240 frame's cubes twice more: 73 instead of 122 ms to write
+//! the paper rig's eight, `cargo bench -p anaglyph-core --bench store`). [`LightFieldStore::create`] writes the
 //! template (every array's metadata and the coordinates) in a hidden sibling folder and
 //! renames it into place, so a store is never half made; a frame is marked done in
 //! `frame_done` only after its shards are written, so a rerun writes exactly the frames
@@ -26,7 +28,7 @@
 //! is never replaced.
 
 use super::MAX_RASTER_VALUES;
-use crate::reconstruct::LightField;
+use crate::reconstruct::{LightField, ReconstructedView};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -38,9 +40,9 @@ use zarrs::group::GroupBuilder;
 
 /// The root attribute that marks a store as anaglyph's and holds its [`StoreLayout`].
 const MARK: &str = "anaglyph";
-/// Sides up to which a shard is one inner chunk; beyond, inner chunks of a divisor of
-/// the side between [`MIN_INNER_PX`] and [`MAX_INNER_PX`] pixels (zarr requires inner
-/// chunks that tile the shard).
+/// Sides up to which a frame and view is one chunk along that side; beyond, inner chunks
+/// of a divisor of the side between [`MIN_INNER_PX`] and [`MAX_INNER_PX`] pixels in a
+/// shard (zarr requires inner chunks that tile the shard).
 const WHOLE_SIDE_PX: usize = 512;
 const MIN_INNER_PX: usize = 64;
 const MAX_INNER_PX: usize = 256;
@@ -117,6 +119,7 @@ impl StoreLayout {
 }
 
 /// A light-field store open for writing frames.
+#[derive(Clone)]
 pub struct LightFieldStore {
     path: PathBuf,
     store: Arc<FilesystemStore>,
@@ -317,9 +320,47 @@ impl LightFieldStore {
 
     /// Writes frame number `frame`'s light field (every view of the layout, its products)
     /// and the `seconds` its reconstruction took, and marks the frame done. Rewriting a
-    /// frame writes the same shards again.
+    /// frame writes the same objects again.
     pub fn write_frame(&self, frame: i64, field: &LightField, seconds: f64) -> Result<()> {
-        let f = self.frame_index(frame)? as u64;
+        self.write_frame_with(frame, field, seconds, true)
+    }
+
+    /// [`LightFieldStore::write_frame`] on a thread of its own, so that the caller computes
+    /// the next frame meanwhile: the field is checked against the store here, then written
+    /// one object at a time on that thread (the frame being computed keeps the cores;
+    /// between its parallel stages they idle, and the write fills them). The field is held
+    /// until its write ends; [`PendingWrite::wait`] gives the write's result.
+    pub fn write_frame_in_background(
+        &self,
+        frame: i64,
+        field: LightField,
+        seconds: f64,
+    ) -> Result<PendingWrite> {
+        self.frame_views(frame, &field)?;
+        let store = self.clone();
+        let handle = std::thread::Builder::new()
+            .name(format!("zarr frame {frame}"))
+            .spawn(move || {
+                let clock = std::time::Instant::now();
+                store.write_frame_with(frame, &field, seconds, false)?;
+                Ok(clock.elapsed().as_secs_f64())
+            })
+            .map_err(|e| Error::output(self.path.display().to_string(), e))?;
+        Ok(PendingWrite {
+            frame,
+            path: self.path.clone(),
+            handle: Some(handle),
+        })
+    }
+
+    /// The field's view of every view of the layout, in layout order, once the field is
+    /// checked against the store (frame, size, bands, views, registered stacks).
+    fn frame_views<'a>(
+        &self,
+        frame: i64,
+        field: &'a LightField,
+    ) -> Result<Vec<&'a ReconstructedView>> {
+        self.frame_index(frame)?;
         let layout = &self.layout;
         if (field.width, field.height) != (layout.width, layout.height) {
             return Err(Error::Shape {
@@ -335,7 +376,7 @@ impl LightFieldStore {
                 format!("the store's {} bands", layout.wavelengths.len()),
             ));
         }
-        let views: Vec<_> = layout
+        let views: Vec<&ReconstructedView> = layout
             .views
             .iter()
             .map(|name| {
@@ -355,13 +396,44 @@ impl LightFieldStore {
                     })
             })
             .collect::<Result<_>>()?;
+        for view in &views {
+            if layout.cubes() {
+                view.cube()?;
+            }
+            if layout.registered() && view.registered.is_none() {
+                return Err(Error::StageDependency {
+                    stage: "Zarr store",
+                    needs: "registered stacks",
+                    why: "the store holds them; run with the registered output",
+                });
+            }
+        }
+        Ok(views)
+    }
+
+    /// [`LightFieldStore::write_frame`], its objects written in parallel or one at a time.
+    fn write_frame_with(
+        &self,
+        frame: i64,
+        field: &LightField,
+        seconds: f64,
+        parallel: bool,
+    ) -> Result<()> {
+        let f = self.frame_index(frame)? as u64;
+        let views = self.frame_views(frame, field)?;
+        let layout = &self.layout;
+        // One object at a time: no codec work handed to the thread pool either.
+        let options = match parallel {
+            true => zarrs::array::CodecOptions::default(),
+            false => zarrs::array::CodecOptions::default().with_concurrent_target(1),
+        };
         let write = |array: &Array<FilesystemStore>, v: usize, data: Shard<'_>| {
             let mut indices = vec![0u64; array.dimensionality()];
             indices[0] = f;
             indices[1] = v as u64;
             match data {
-                Shard::F32(values) => array.store_chunk(&indices, values),
-                Shard::U8(values) => array.store_chunk(&indices, values),
+                Shard::F32(values) => array.store_chunk_opt(&indices, values, &options),
+                Shard::U8(values) => array.store_chunk_opt(&indices, values, &options),
             }
             .map_err(|e| zarr_error(&self.path, e))
         };
@@ -375,32 +447,82 @@ impl LightFieldStore {
             .transpose()?;
         let disparity = self.array("disparity")?;
         let visibility = self.array("visibility")?;
-        // Every shard on its own (each view's arrays are separate objects): in parallel.
+        // Every object on its own (each view's arrays are separate objects).
         let mut shards: Vec<(&Array<FilesystemStore>, usize, Shard<'_>)> = Vec::new();
         for (v, view) in views.iter().enumerate() {
             if let Some(array) = &reflectance {
                 shards.push((array, v, Shard::F32(&view.cube()?.data)));
             }
-            if let Some(array) = &registered {
-                let stack = view.registered.as_ref().ok_or(Error::StageDependency {
-                    stage: "Zarr store",
-                    needs: "registered stacks",
-                    why: "the store holds them; run with the registered output",
-                })?;
+            if let (Some(array), Some(stack)) = (&registered, &view.registered) {
                 shards.push((array, v, Shard::F32(&stack.data)));
             }
             shards.push((&disparity, v, Shard::F32(&view.disparity.data)));
             shards.push((&visibility, v, Shard::U8(&view.cameras_seeing.data)));
         }
-        shards
-            .into_par_iter()
-            .try_for_each(|(array, v, data)| write(array, v, data))?;
+        match parallel {
+            true => shards
+                .into_par_iter()
+                .try_for_each(|(array, v, data)| write(array, v, data))?,
+            false => shards
+                .into_iter()
+                .try_for_each(|(array, v, data)| write(array, v, data))?,
+        }
         self.array("frame_seconds")?
             .store_chunk(&[f], &[seconds][..])
             .map_err(|e| zarr_error(&self.path, e))?;
         self.array("frame_done")?
             .store_chunk(&[f], &[1u8][..])
             .map_err(|e| zarr_error(&self.path, e))
+    }
+}
+
+/// A frame being written on a thread of its own
+/// ([`LightFieldStore::write_frame_in_background`]). Dropped without
+/// [`PendingWrite::wait`], it still waits for the write to end (a frame is never left
+/// half written by its caller's return), and only the result is lost.
+#[must_use = "wait() tells whether the frame was written"]
+pub struct PendingWrite {
+    frame: i64,
+    path: PathBuf,
+    handle: Option<std::thread::JoinHandle<Result<f64>>>,
+}
+
+impl std::fmt::Debug for PendingWrite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PendingWrite")
+            .field("frame", &self.frame)
+            .field("path", &self.path)
+            .finish()
+    }
+}
+
+impl PendingWrite {
+    /// The frame number being written.
+    pub fn frame(&self) -> i64 {
+        self.frame
+    }
+
+    /// Waits for the write to end: the seconds it took on its thread, or its error.
+    pub fn wait(mut self) -> Result<f64> {
+        let handle = self
+            .handle
+            .take()
+            .expect("a pending write is waited for once");
+        match handle.join() {
+            Ok(result) => result,
+            Err(_) => Err(Error::output(
+                self.path.display().to_string(),
+                format!("the thread writing frame {} stopped", self.frame),
+            )),
+        }
+    }
+}
+
+impl Drop for PendingWrite {
+    fn drop(&mut self) {
+        if let Some(handle) = self.handle.take() {
+            let _ = handle.join();
+        }
     }
 }
 
@@ -468,8 +590,11 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
         } else {
             ArrayBuilder::new(shape, shard, data_type::uint8(), 0u8)
         };
+        // A frame and view of one inner chunk is that chunk, not a shard of it.
+        if (ch, cw) != (h, w) {
+            builder.subchunk_shape(inner);
+        }
         builder
-            .subchunk_shape(inner)
             .bytes_to_bytes_codecs(compress())
             .dimension_names(Some(dims))
             .attributes(attributes(attrs));
@@ -616,7 +741,53 @@ fn write_template(dir: &Path, layout: &StoreLayout) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::inner_side;
+    use super::{inner_side, write_template, StoreLayout};
+
+    /// The codecs of `array` in a template made for views of `width`×`height`.
+    fn codecs(width: usize, height: usize, array: &str) -> Vec<String> {
+        let dir = tempfile::tempdir().unwrap();
+        let layout = StoreLayout {
+            frames: vec![0, 1],
+            views: vec!["a".into(), "b".into()],
+            width,
+            height,
+            wavelengths: vec![500.0, 600.0],
+            channels: vec![],
+            run: serde_json::Value::Null,
+        };
+        write_template(dir.path(), &layout).unwrap();
+        let text = std::fs::read_to_string(dir.path().join(array).join("zarr.json")).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let chunks = &json["chunk_grid"]["configuration"]["chunk_shape"];
+        let mut names = vec![chunks.to_string()];
+        for codec in json["codecs"].as_array().unwrap() {
+            names.push(codec["name"].as_str().unwrap().to_string());
+            if let Some(inner) = codec.pointer("/configuration/chunk_shape") {
+                names.push(inner.to_string());
+            }
+        }
+        names
+    }
+
+    #[test]
+    fn a_frame_and_view_is_one_chunk_up_to_512_px_and_a_shard_beyond() {
+        assert_eq!(
+            codecs(320, 240, "reflectance"),
+            ["[1,1,240,320,2]", "bytes", "zstd"]
+        );
+        assert_eq!(
+            codecs(512, 512, "disparity"),
+            ["[1,1,512,512]", "bytes", "zstd"]
+        );
+        assert_eq!(
+            codecs(1600, 1200, "reflectance"),
+            ["[1,1,1200,1600,2]", "sharding_indexed", "[1,1,240,200,2]"]
+        );
+        assert_eq!(
+            codecs(640, 480, "disparity"),
+            ["[1,1,480,640]", "sharding_indexed", "[1,1,480,160]"]
+        );
+    }
 
     #[test]
     fn inner_chunks_tile_the_shard() {

@@ -44,6 +44,7 @@ __all__ = [
     "InternalError",
     "Rig",
     "FrameCarry",
+    "PendingWrite",
     "choices",
     "set_num_threads",
     "get_num_threads",
@@ -206,10 +207,18 @@ def reconstruct(
     reuse: bool = True,
     previous: FrameCarry | None = None,
     frame_darks: dict[str, _Image] | None = None,
+    background_write: bool = False,
+    previous_write: PendingWrite | None = None,
 ) -> dict[str, Any]: ...
 @final
 class FrameCarry:
     """What one frame of a sequence hands to the next (opaque)."""
+
+@final
+class PendingWrite:
+    """A frame being written into a store on a thread of its own."""
+
+    def wait(self) -> float: ...
 
 def read_capture(path: _Path) -> npt.NDArray[np.uint8] | npt.NDArray[np.uint16]: ...
 def discover_frames(

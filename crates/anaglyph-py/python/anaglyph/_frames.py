@@ -31,8 +31,10 @@ logger = logging.getLogger("anaglyph")
 @dataclass
 class FrameReport:
     """What one frame's run did: its ``frame`` number, the ``seconds`` it took (the whole
-    call), ``store_seconds`` spent writing it, whether it was ``skipped`` (already in the
-    store), its ``warnings`` and what it reused of the previous frame (``reuse``, the manifest's
+    call, without its write), ``store_seconds`` its write took (on a thread of its own while
+    the next frame is computed), ``store_wait_seconds`` the next frame (or the end of the
+    run) then waited for that write, whether it was ``skipped`` (already in the store), its
+    ``warnings`` and what it reused of the previous frame (``reuse``, the manifest's
     ``temporal_reuse``: ``cut``, ``narrowed_range``, ``range_fallback``,
     ``banded`` (registration's tiles searched around the previous maps), ``priors_carried``,
     ...; None when skipped)."""
@@ -40,6 +42,7 @@ class FrameReport:
     frame: int
     seconds: float
     store_seconds: float = 0.0
+    store_wait_seconds: float = 0.0
     skipped: bool = False
     warnings: list[str] = field(default_factory=list)
     reuse: dict[str, Any] | None = None
@@ -284,6 +287,10 @@ def reconstruct_frames(
     reports: list[FrameReport] = []
     results: dict[int, Reconstruction] = {}
     carry = None  # what the last frame computed hands to the next
+    # The last frame's write, on a thread of its own while the next frame is computed, and
+    # that frame's report.
+    pending = None
+    pending_report: FrameReport | None = None
     try:
         for index, (number, captures) in enumerate(numbered):
             started = time.perf_counter()
@@ -305,9 +312,15 @@ def reconstruct_frames(
                 skip_done=store is not None,
                 previous=carry,
                 frame_darks=own_darks[number] if own_darks else None,
+                background_write=store is not None,
+                previous_write=pending,
                 **options,
             )
             seconds = time.perf_counter() - started
+            if "previous_store_seconds" in out and pending_report is not None:
+                pending_report.store_seconds = float(out["previous_store_seconds"])
+                pending_report.store_wait_seconds = float(out["previous_store_wait_seconds"])
+                pending, pending_report = None, None
             carry = out.get("carry")  # None after a skipped frame: nothing to carry over it
             if out["skipped"]:
                 reports.append(FrameReport(frame=number, seconds=seconds, skipped=True))
@@ -318,16 +331,24 @@ def reconstruct_frames(
                     FrameReport(
                         frame=number,
                         seconds=seconds,
-                        store_seconds=float(out["manifest"].get("store_seconds", 0.0)),
                         warnings=list(out["warnings"]),
                         reuse=out["manifest"].get("temporal_reuse"),
                     )
                 )
+                if "pending_write" in out:
+                    pending, pending_report = out["pending_write"], reports[-1]
                 if store is None:
                     results[number] = _reconstruction(out)
             if bar is not None:
                 bar.update(1)
     finally:
+        # The last write ends before the call returns, also when a frame failed.
+        if pending is not None:
+            waiting = time.perf_counter()
+            written = pending.wait()
+            if pending_report is not None:
+                pending_report.store_seconds = written
+                pending_report.store_wait_seconds = time.perf_counter() - waiting
         if bar is not None:
             bar.close()
     if store is None:

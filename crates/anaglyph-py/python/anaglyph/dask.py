@@ -8,9 +8,9 @@ on the workers, each writing its own frames into one Zarr store.
     run = anaglyph.dask.reconstruct_frames(rig, frames, "clip.zarr", client=client, whites=whites)
 
 The store's template (every array's metadata, the coordinates) is written by the caller
-before any task; each task reconstructs a batch of frames and writes their shards (one per
-frame and view, so tasks never share one) and returns only a small report. A task that
-fails or whose worker is lost is run again by the scheduler and writes the same shards
+before any task; each task reconstructs a batch of frames and writes their chunks or shards
+(one object per frame and view, so tasks never share one) and returns only a small report. A task that
+fails or whose worker is lost is run again by the scheduler and writes the same objects
 (frames already marked done are skipped). Each worker's reconstruction uses as many
 threads as the worker has (``anaglyph.set_num_threads``), so workers × threads never
 oversubscribe the cores. ``docs/cluster.md`` runs it on Slurm through ``dask-jobqueue``.
@@ -55,7 +55,7 @@ def _run_batch(
         _core.set_num_threads(max(1, int(get_worker().state.nthreads)))
     except ValueError:  # not on a worker (a synchronous scheduler): keep the default
         pass
-    reports = []
+    reports: list[dict[str, Any]] = []
     # Temporal reuse chains the batch's frames from its first, so a batch that a lost
     # worker left half written is computed again from its first frame (rewriting the
     # same bytes), not resumed in the middle of its chain.
@@ -73,31 +73,47 @@ def _run_batch(
         done = dict(zip(numbers, probe["frames_done"]))
         recompute = not all(done[item[0]] for item in batch)
     carry = None
-    for number, captures, darks in batch:
-        started = time.perf_counter()
-        out = _core.reconstruct(
-            rig,
-            _read(captures),
-            frame_darks=darks,
-            store=store,
-            frame=number,
-            frames=numbers,
-            arrays=False,
-            skip_done=not recompute,
-            previous=carry,
-            **options,
-        )
-        carry = out.get("carry")
-        reports.append(
-            {
-                "frame": number,
-                "seconds": time.perf_counter() - started,
-                "store_seconds": float(out.get("manifest", {}).get("store_seconds", 0.0)),
-                "skipped": bool(out["skipped"]),
-                "warnings": list(out.get("warnings", [])),
-                "reuse": out.get("manifest", {}).get("temporal_reuse"),
-            }
-        )
+    # Each frame's write runs on a thread of its own while the next frame is computed; the
+    # task returns once the last one has ended.
+    pending = None
+    try:
+        for number, captures, darks in batch:
+            started = time.perf_counter()
+            out = _core.reconstruct(
+                rig,
+                _read(captures),
+                frame_darks=darks,
+                store=store,
+                frame=number,
+                frames=numbers,
+                arrays=False,
+                skip_done=not recompute,
+                previous=carry,
+                background_write=True,
+                previous_write=pending,
+                **options,
+            )
+            carry = out.get("carry")
+            if "previous_store_seconds" in out:
+                reports[-1]["store_seconds"] = float(out["previous_store_seconds"])
+                pending = None
+            reports.append(
+                {
+                    "frame": number,
+                    "seconds": time.perf_counter() - started,
+                    "store_seconds": 0.0,
+                    "skipped": bool(out["skipped"]),
+                    "warnings": list(out.get("warnings", [])),
+                    "reuse": out.get("manifest", {}).get("temporal_reuse"),
+                }
+            )
+            if "pending_write" in out:
+                pending = out["pending_write"]
+    finally:
+        if pending is not None:
+            written = pending.wait()
+            if reports:
+                reports[-1]["store_seconds"] = written
     return reports
 
 
