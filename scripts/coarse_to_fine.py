@@ -6,11 +6,11 @@ disparity maps' bad-1 and median error against the truth (all pixels of all view
 the registered stacks' PSNR against the oracle's (pixels both see, peak 1).
 
     cargo build --release
-    python scripts/coarse_to_fine.py [RIG] [WxH] [ANAGLYPH]
+    python scripts/coarse_to_fine.py [RIG] [WxH] [ANAGLYPH] [MODES]
 
 RIG: a preset (mono-3x3, hexagon-7, paper-2x4; default mono-3x3); WxH default
-1600x1200; ANAGLYPH: the binary (default target/release/anaglyph). Needs numpy and
-/usr/bin/time.
+1600x1200; ANAGLYPH: the binary (default target/release/anaglyph); MODES: the
+registrations to run, `off,on` (default) or one of them. Needs numpy and /usr/bin/time.
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ def main() -> None:
     rig = sys.argv[1] if len(sys.argv) > 1 else "mono-3x3"
     size = sys.argv[2] if len(sys.argv) > 2 else "1600x1200"
     binary = sys.argv[3] if len(sys.argv) > 3 else "target/release/anaglyph"
+    modes = (sys.argv[4] if len(sys.argv) > 4 else "off,on").split(",")
     with tempfile.TemporaryDirectory() as tmp:
         sim = Path(tmp) / "sim"
         subprocess.run(
@@ -70,10 +71,11 @@ def main() -> None:
         )
         base = [binary, "reconstruct", "--rig", str(sim / "rig.toml"), "--output", "registered"]
         runs = {
-            "full search": ["--coarse-to-fine", "off"],
-            "coarse to fine": ["--coarse-to-fine", "on"],
-            "true disparities": ["--true-disparity", str(sim)],
+            name: ["--coarse-to-fine", mode]
+            for name, mode in (("full search", "off"), ("coarse to fine", "on"))
+            if mode in modes
         }
+        runs["true disparities"] = ["--true-disparity", str(sim)]
         results = {}
         for name, extra in runs.items():
             out = Path(tmp) / name.replace(" ", "-")

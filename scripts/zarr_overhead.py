@@ -6,7 +6,7 @@ the same run returning its arrays instead (no store), alternately, REPEATS times
 (default 2). Each frame's write runs on a thread of its own while the next frame is
 computed; prints per frame of the last run with the store the call's time, the write's
 time on its thread and how long the next frame waited for it, then each run's wall time,
-and the store's cost: the median run with it against the median run without.
+and the store's cost: each run with it against the run without it that followed.
 
     pip install ./crates/anaglyph-py
     python scripts/zarr_overhead.py [FRAMES] [WxH] [OUTPUT] [REPEATS]
@@ -66,10 +66,15 @@ def main() -> None:
             )
         for kind, values in walls.items():
             print(f"{kind}: " + ", ".join(f"{v:.2f} s" for v in values))
+        # Each run with the store against the run without it just after (the machine's
+        # speed drifts between runs by as much as the store costs).
+        paired = [100 * (a / b - 1) for a, b in zip(walls["store"], walls["arrays"])]
         with_store, without = statistics.median(walls["store"]), statistics.median(walls["arrays"])
         print(
             f"{width}x{height}, {frames} frames, {output}: {with_store:.2f} s with the store, "
-            f"{without:.2f} s without ({100 * (with_store / without - 1):+.1f} %); "
+            f"{without:.2f} s without (runs paired: "
+            + ", ".join(f"{d:+.1f} %" for d in paired)
+            + f", median {statistics.median(paired):+.1f} %); "
             f"median write {statistics.median(r.store_seconds for r in reports):.3f} s, "
             f"median wait {statistics.median(r.store_wait_seconds for r in reports):.3f} s; "
             f"store {size / 2**20:.1f} MiB"

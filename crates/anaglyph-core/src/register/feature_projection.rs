@@ -176,6 +176,24 @@ impl FeatureProjection {
         }
     }
 
+    /// Image `j`'s projected features into `out` (`pixels × channels` in, `pixels × dims`
+    /// out, row-major, not normalised), a strip of pixels at a time: summed over the
+    /// images and normalised ([`normalise_features`]), they are
+    /// [`FeatureProjection::merged_maps`] without any image's whole feature map held.
+    pub(crate) fn project_image(&self, j: usize, features: &[f32], out: &mut [f32]) {
+        let (c, dims) = (self.channels, self.dims);
+        let pixels = (features.len() / c.max(1)).min(out.len() / dims.max(1));
+        let (features, out) = (&features[..pixels * c], &mut out[..pixels * dims]);
+        faer::linalg::matmul::matmul(
+            faer::MatMut::from_row_major_slice_mut(out, pixels, dims),
+            faer::Accum::Replace,
+            faer::MatRef::from_row_major_slice(features, pixels, c),
+            faer::MatRef::from_row_major_slice(&self.blocks[j], c, dims),
+            1.0f32,
+            faer::Par::Seq,
+        );
+    }
+
     /// The merged, unit-length features of a view's matching images, from their feature
     /// maps (one per matching image, in the order the projection was fitted with).
     pub fn merged_maps(&self, maps: Vec<FeatureMap>) -> Result<FeatureMap> {
@@ -213,14 +231,19 @@ impl FeatureProjection {
         }
         let mut merged = merged
             .ok_or_else(|| Error::raster("feature projection", "no images", "at least one"))?;
-        merged.data.par_chunks_mut(self.dims).for_each(|f| {
-            let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
-            if norm > 0.0 {
-                f.iter_mut().for_each(|v| *v /= norm);
-            }
-        });
+        normalise_features(&mut merged);
         Ok(merged)
     }
+}
+
+/// Scales every pixel's features to unit length (zero features stay zero).
+pub(crate) fn normalise_features(map: &mut FeatureMap) {
+    map.data.par_chunks_mut(map.channels.max(1)).for_each(|f| {
+        let norm = f.iter().map(|v| v * v).sum::<f32>().sqrt();
+        if norm > 0.0 {
+            f.iter_mut().for_each(|v| *v /= norm);
+        }
+    });
 }
 
 #[cfg(test)]
@@ -283,6 +306,51 @@ mod tests {
                 (got - expected).abs() < 1e-5,
                 "pixel {p}: {got} against {expected}"
             );
+        }
+    }
+
+    /// Each image projected a strip at a time, summed and normalised, is the merge of the
+    /// whole maps (a large view's path, which holds no whole map), fitted elsewhere.
+    #[test]
+    fn images_projected_strip_by_strip_and_summed_are_the_merged_maps() {
+        let (pixels, c, dims) = (240, 8, 5);
+        let fitted_on = [unit_features(pixels, c, 11), unit_features(pixels, c, 12)];
+        let projection = FeatureProjection::fit(&fitted_on, dims).unwrap();
+        let view = [unit_features(pixels, c, 13), unit_features(pixels, c, 14)];
+        let merged = projection.merged_maps(view.to_vec()).unwrap();
+        let mut sum = FeatureMap {
+            width: pixels,
+            height: 1,
+            channels: dims,
+            data: vec![0.0; pixels * dims],
+        };
+        for (j, map) in view.iter().enumerate() {
+            let strip = 37; // not a divisor of the pixels: a short last strip
+            for (src, dst) in map
+                .data
+                .chunks(strip * c)
+                .zip(sum.data.chunks_mut(strip * dims))
+            {
+                let mut part = vec![f32::NAN; dst.len()];
+                projection.project_image(j, src, &mut part);
+                dst.iter_mut().zip(&part).for_each(|(s, x)| *s += x);
+            }
+        }
+        normalise_features(&mut sum);
+        for (p, (got, expected)) in sum
+            .data
+            .chunks(dims)
+            .zip(merged.data.chunks(dims))
+            .enumerate()
+        {
+            let norm = got.iter().map(|v| v * v).sum::<f32>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-5, "pixel {p}: norm {norm}");
+            for (a, b) in got.iter().zip(expected) {
+                assert!(
+                    (a - b).abs() < 1e-5,
+                    "pixel {p}: {got:?} against {expected:?}"
+                );
+            }
         }
     }
 

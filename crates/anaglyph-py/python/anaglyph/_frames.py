@@ -227,8 +227,9 @@ def reconstruct_frames(
     have the first frame's cameras, shapes and dtypes (checked before any work).
 
     With ``store`` (a path ending in ``.zarr``), each frame is written to that Zarr v3
-    store as it finishes and the call returns a :class:`SequenceRun` (per-frame timings),
-    holding no frame in memory: ``reflectance`` ``(frame, view, y, x, wavelength)``,
+    store as it finishes (on a thread of its own while the next frame is computed; the call
+    returns once every write has ended) and the call returns a :class:`SequenceRun`
+    (per-frame timings), holding no more than the frame being written in memory: ``reflectance`` ``(frame, view, y, x, wavelength)``,
     ``disparity`` and ``visibility`` ``(frame, view, y, x)``, ``registered`` ``(frame,
     view, y, x, channel)`` with ``output="registered"`` or ``"both"``, and the coordinates
     ``frame``, ``view``, ``wavelength`` (nm), ``channel``. A store of the same run is

@@ -49,7 +49,7 @@
 mod cost;
 
 use super::compact_features::{to_bf16, CompactFeatures};
-use super::feature_projection::FeatureProjection;
+use super::feature_projection::{normalise_features, FeatureProjection};
 use super::{
     apply_region_planes, confirmed_by_neighbours, fill_by_cost, region_planes,
     smooth_within_surfaces, vote_with_neighbours, Ambiguity, ArrayGeometry, BandedSearch,
@@ -107,9 +107,11 @@ pub fn multi_baseline_disparities(
     finish(matched, &costs, settings.range, timings)
 }
 
-/// Matching images (the leading common signals) the fine level compares by: the coarse
-/// level, with all of them, has told apart the materials that look alike in one, and the
-/// fine level only searches a band around its disparities.
+/// Matching images (the leading common signals) the fine level of one-channel cameras
+/// compares by (their matching images are one image up to sign; cameras of several
+/// channels take [`REUSED_SIGNALS`]): the coarse level, with all of them, has told apart
+/// the materials that look alike in one, and the fine level only searches a band around
+/// its disparities.
 const FINE_SIGNALS: usize = 1;
 
 /// Dimensions the fine level's features are projected onto (a [`FeatureProjection`]
@@ -120,13 +122,16 @@ const FINE_SIGNALS: usize = 1;
 /// and 1.9 GB.
 const FINE_DIMS: usize = 16;
 
-/// Matching images a reused frame's small views of cameras with several channels compare
-/// by (the leading common signals; one-channel cameras' are one image up to sign, and
-/// large views take [`FINE_SIGNALS`]). On the paper's rig at 320×240 (tabletop-moving,
-/// frames 1 to 7) a reused frame took 2.86 s with two, 3.01 s with all three and 2.48 s
-/// with one, and its reference view scored 0.14 to 0.23 dB above the frame alone with
-/// two, 0.09 to 0.19 dB with three, and up to 0.23 dB below it with one
-/// (docs/sequence.md).
+/// Matching images the fine level of coarse to fine and a reused frame's small views
+/// compare by where the cameras have several channels (the leading common signals;
+/// one-channel cameras' are one image up to sign, and a reused frame's large views take
+/// [`FINE_SIGNALS`]). On the paper's rig at 320×240 (tabletop-moving, frames 1 to 7) a
+/// reused frame took 2.86 s with two, 3.01 s with all three and 2.48 s with one, and its
+/// reference view scored 0.14 to 0.23 dB above the frame alone with two, 0.09 to 0.19 dB
+/// with three, and up to 0.23 dB below it with one (docs/sequence.md). Coarse to fine at
+/// 1600×1200 on the same rig (tabletop): registered stacks at 44.83 dB with two against
+/// 44.60 dB with one (the full search 44.79), in 83.3 instead of 76.4 s at the same peak
+/// (docs/reconstruction.md).
 const REUSED_SIGNALS: usize = 2;
 
 /// Views of at least this many pixels are registered coarse to fine by default
@@ -179,7 +184,11 @@ fn coarse_to_fine(
         .map(|(name, seconds)| (format!("coarse: {name}"), *seconds))
         .collect();
     let clock = Instant::now();
-    let features = view_features(network, images, FINE_SIGNALS, Some(FINE_DIMS))?;
+    let signals = match images.iter().all(matching_up_to_sign) {
+        true => FINE_SIGNALS,
+        false => REUSED_SIGNALS,
+    };
+    let features = view_features(network, images, signals, Some(FINE_DIMS))?;
     let costs = PointCosts::new(&features, geometry);
     timings.push(("features".to_string(), clock.elapsed().as_secs_f64()));
     let guides = BandGuide::of_coarse(coarse.disparities, geometry);
@@ -906,15 +915,31 @@ fn view_features(
     // computed again (a ninth of the network's work for three signals).
     let projected =
         matching_images(&images[0]).len() > 1 || dims.is_some_and(|d| d < network.feature_maps());
+    let large = |v: &ViewImage| v.image.width * v.image.height >= COARSE_TO_FINE_PIXELS;
     let (projection, mut first_maps) = if projected {
-        let maps = distinct_features(network, &matching_images(&images[0]));
+        let first = matching_images(&images[0]);
+        // Several images of a large view: fitted on the view's central quarter, so that
+        // no whole view's maps of them are held (the first view is then projected as the
+        // others are).
+        let whole = first.len() == 1 || !large(&images[0]);
+        let maps = match whole {
+            true => distinct_features(network, &first),
+            false => {
+                let (w, h) = (images[0].image.width, images[0].image.height);
+                let crops = first
+                    .iter()
+                    .map(|image| image.crop(w / 4..w - w / 4, h / 4..h - h / 4))
+                    .collect::<Result<Vec<_>>>()?;
+                distinct_features(network, &crops.iter().collect::<Vec<_>>())
+            }
+        };
         let dims = dims.unwrap_or(maps[0].channels);
         let fitted = FeatureProjection::fit(&maps, dims)?;
         tracing::info!(
             "feature projection keeps {:.4} of the energy",
             fitted.energy_kept
         );
-        (Some(fitted), Some(maps))
+        (Some(fitted), whole.then_some(maps))
     } else {
         (None, None)
     };
@@ -933,6 +958,26 @@ fn view_features(
                             *o = to_bf16(v);
                         }
                     })
+                }
+                // Several images of a large view: each projected strip by strip and summed,
+                // no whole 64-channel map held (two images' at 1600×1200 are 980 MB).
+                (Some(p), None) if large(v) => {
+                    let images = matching_images(v);
+                    let project = |j: usize| {
+                        tower_features_mapped(network, images[j], p.dims(), |f, out| {
+                            p.project_image(j, f, out)
+                        })
+                    };
+                    let mut sum = project(0);
+                    for j in 1..images.len() {
+                        let part = project(j);
+                        sum.data
+                            .par_iter_mut()
+                            .zip(&part.data)
+                            .for_each(|(s, &x)| *s += x);
+                    }
+                    normalise_features(&mut sum);
+                    CompactFeatures::from(sum)
                 }
                 (Some(p), None) => CompactFeatures::from(
                     p.merged_maps(distinct_features(network, &matching_images(v)))?,
