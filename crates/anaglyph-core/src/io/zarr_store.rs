@@ -18,7 +18,7 @@
 //! independently, by one process or by many: a shard of zstd-compressed inner chunks that
 //! tile it (about 200 pixels a side; crc32c-checked index) where a side is longer than
 //! 512 px, else one zstd-compressed chunk (such a shard would hold one inner chunk, and
-//! its encoding copies a 320×240 frame's cubes twice more: 73 instead of 122 ms to write
+//! its encoding copies a 320×240 frame's cubes twice more: 72 instead of 122 ms to write
 //! the paper rig's eight, `cargo bench -p anaglyph-core --bench store`). [`LightFieldStore::create`] writes the
 //! template (every array's metadata and the coordinates) in a hidden sibling folder and
 //! renames it into place, so a store is never half made; a frame is marked done in
