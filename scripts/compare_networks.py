@@ -21,24 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
+from anaglyph_files import read_pfm
+
 RIGS = ("paper-2x4", "mono-3x3", "hexagon-7")
 SCENES = ("tabletop", "clutter")
-
-
-def pfm(path: Path) -> np.ndarray:
-    with open(path, "rb") as f:
-        assert f.readline().strip() == b"Pf", path
-        width, height = map(int, f.readline().split())
-        scale = float(f.readline())
-        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
-    return np.flipud(data.reshape(height, width))
 
 
 def bad1(truth: Path, recon: Path) -> float:
     wrong, total = 0, 0
     for true_map in sorted((truth / "truth").glob("*_disparity.pfm")):
         view = true_map.name.removesuffix("_disparity.pfm")
-        expected, got = pfm(true_map), pfm(recon / "disparity" / f"{view}.pfm")
+        expected = read_pfm(str(true_map))
+        got = read_pfm(str(recon / "disparity" / f"{view}.pfm"))
         known = np.isfinite(expected)
         error = np.abs(np.where(np.isfinite(got), got, np.inf) - expected)[known]
         wrong += int(np.count_nonzero(~(error <= 1.0)))

@@ -403,17 +403,11 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
         }
         let frame_seconds = clock.elapsed().as_secs_f64();
         seconds.push(frame_seconds);
-        if let Some(write) = pending.take() {
-            let frame = write.frame();
-            write.wait().with_context(|| format!("frame {frame}"))?;
-        }
+        finish_write(pending.take())?;
         pending = Some(store.write_frame_in_background(number, field, frame_seconds)?);
         bar.inc(1);
     }
-    if let Some(write) = pending.take() {
-        let frame = write.frame();
-        write.wait().with_context(|| format!("frame {frame}"))?;
-    }
+    finish_write(pending.take())?;
     bar.finish_and_clear();
     if request.temporal_reuse && seconds.len() > 1 {
         println!("{}", reused.summary());
@@ -428,6 +422,15 @@ fn run_sequence(args: ReconstructArgs) -> anyhow::Result<()> {
         format_seconds(median),
         format_seconds(started.elapsed().as_secs_f64())
     );
+    Ok(())
+}
+
+/// Waits for a frame's write into the store; its error names the frame.
+fn finish_write(write: Option<PendingWrite>) -> anyhow::Result<()> {
+    if let Some(write) = write {
+        let frame = write.frame();
+        write.wait().with_context(|| format!("frame {frame}"))?;
+    }
     Ok(())
 }
 

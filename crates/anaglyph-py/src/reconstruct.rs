@@ -413,7 +413,6 @@ pub fn reconstruct<'py>(
         }
         let mut manifest = field.manifest(parameters, loading_seconds)?;
         finish_previous(previous_write.take())?;
-        let mut pending = None;
         match &store {
             // The field goes to the write; Python gets no arrays of it, only its summary.
             Some(store) if background_write => {
@@ -421,8 +420,8 @@ pub fn reconstruct<'py>(
                 let views = std::mem::take(&mut field.views);
                 let summary = field.clone();
                 field.views = views;
-                pending = Some(store.write_frame_in_background(frame, field, seconds)?);
-                return Ok(Some((summary, manifest, carry, pending)));
+                let pending = store.write_frame_in_background(frame, field, seconds)?;
+                return Ok(Some((summary, manifest, carry, Some(pending))));
             }
             Some(store) => {
                 let writing = std::time::Instant::now();
@@ -431,7 +430,7 @@ pub fn reconstruct<'py>(
             }
             None => {}
         }
-        Ok(Some((field, manifest, carry, pending)))
+        Ok(Some((field, manifest, carry, None)))
     });
     if let Some(e) = callback_error.lock().ok().and_then(|mut slot| slot.take()) {
         return Err(e);

@@ -19,11 +19,11 @@
 //! tile it (about 200 pixels a side; crc32c-checked index) where a side is longer than
 //! 512 px, else one zstd-compressed chunk (such a shard would hold one inner chunk, and
 //! its encoding copies a 320×240 frame's cubes twice more: 72 instead of 122 ms to write
-//! the paper rig's eight, `cargo bench -p anaglyph-core --bench store`). [`LightFieldStore::create`] writes the
-//! template (every array's metadata and the coordinates) in a hidden sibling folder and
-//! renames it into place, so a store is never half made; a frame is marked done in
-//! `frame_done` only after its shards are written, so a rerun writes exactly the frames
-//! not marked. A store that holds another run (another rig, settings, frames or views) is
+//! the paper rig's eight, `cargo bench -p anaglyph-core --bench store`).
+//! [`LightFieldStore::create`] writes the template (every array's metadata and the
+//! coordinates) in a hidden sibling folder and renames it into place, so a store is never
+//! half made; a frame is marked done in `frame_done` only after its objects are written,
+//! so a rerun writes exactly the frames not marked. A store that holds another run (another rig, settings, frames or views) is
 //! refused unless the caller asks to overwrite it; a folder that is not an anaglyph store
 //! is never replaced.
 
@@ -353,14 +353,15 @@ impl LightFieldStore {
         })
     }
 
-    /// The field's view of every view of the layout, in layout order, once the field is
-    /// checked against the store (frame, size, bands, views, registered stacks).
+    /// The frame's position on the `frame` axis and the field's view of every view of the
+    /// layout, in layout order, once the field is checked against the store (frame, size,
+    /// bands, views, registered stacks).
     fn frame_views<'a>(
         &self,
         frame: i64,
         field: &'a LightField,
-    ) -> Result<Vec<&'a ReconstructedView>> {
-        self.frame_index(frame)?;
+    ) -> Result<(u64, Vec<&'a ReconstructedView>)> {
+        let index = self.frame_index(frame)? as u64;
         let layout = &self.layout;
         if (field.width, field.height) != (layout.width, layout.height) {
             return Err(Error::Shape {
@@ -408,7 +409,7 @@ impl LightFieldStore {
                 });
             }
         }
-        Ok(views)
+        Ok((index, views))
     }
 
     /// [`LightFieldStore::write_frame`], its objects written in parallel or one at a time.
@@ -419,8 +420,7 @@ impl LightFieldStore {
         seconds: f64,
         parallel: bool,
     ) -> Result<()> {
-        let f = self.frame_index(frame)? as u64;
-        let views = self.frame_views(frame, field)?;
+        let (f, views) = self.frame_views(frame, field)?;
         let layout = &self.layout;
         // One object at a time: no codec work handed to the thread pool either.
         let options = match parallel {
