@@ -89,6 +89,17 @@ pub enum CoarseToFine {
     Off,
 }
 
+impl CoarseToFine {
+    /// Whether views of `width × height` go coarse to fine.
+    pub fn applies(self, width: usize, height: usize) -> bool {
+        match self {
+            CoarseToFine::Auto => width * height >= COARSE_TO_FINE_PIXELS,
+            CoarseToFine::On => true,
+            CoarseToFine::Off => false,
+        }
+    }
+}
+
 crate::choice::named_choices!(CoarseToFine, "coarse-to-fine" {
     Auto = "auto" "From one megapixel per view: the whole range at half the resolution, then a band around it at full resolution.",
     On = "on" "Coarse to fine whatever the size.",

@@ -4,7 +4,9 @@
 //! (signed: a third of it below zero, for arrays calibrated to a plane), and the 2nd and
 //! 98th percentiles of those disparities, scaled back with a margin, become the
 //! full-resolution range, from the views inside the array ([`ArrayGeometry::interior_views`]) and only
-//! where another view's map confirms them. The range starts at 0 unless the coarse
+//! where another view's map confirms them. Where the views themselves go coarse to fine
+//! ([`CoarseToFine::applies`]), so does this registration (its own coarse level 2× coarser
+//! again): the coarse range is several times what the views need. The range starts at 0 unless the coarse
 //! disparities reach below −0.5 coarse pixel, so an array rectified to infinity is searched
 //! from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
@@ -100,13 +102,22 @@ pub fn estimate_search_range(
         geometry,
         &RegistrationSettings {
             range: coarse_range,
-            // The estimate is coarse already.
-            coarse_to_fine: CoarseToFine::Off,
+            // Coarse to fine itself where the views are (its coarse level 2× coarser):
+            // the coarse range is several times the views' (−42:128 at 4× for a 3×3
+            // array's 1600×1200 views, whose disparities span 0:39).
+            coarse_to_fine: if settings.coarse_to_fine.applies(w, h) {
+                CoarseToFine::On
+            } else {
+                CoarseToFine::Off
+            },
             previous: None,
             ..*settings
         },
         &|_, _| {},
     )?;
+    for (stage, seconds) in &registration.timings {
+        tracing::debug!("search range: {stage}: {seconds:.3} s");
+    }
     // An outer view's pixels near its outer edge see other views on one side only, and
     // their coarse multi-view costs favour disparities where fewer, spectrally closer views
     // overlap: on a simulated 3×3 narrow-band array at 800×600, a quarter of every outer

@@ -572,19 +572,14 @@ fn lanczos(
     if !agreeing && !rows().all(|(row, _)| taps(row).all(|(p, _)| tap_ok(p))) {
         return false;
     }
-    // The same sums in the same order as every channel's below, in a register.
-    if let [out] = dst {
-        let mut sum = 0.0;
-        for (row, ky) in rows() {
-            let values = &view.image.data[row..][..KERNEL_TAPS];
-            for (i, &kx) in wx.iter().enumerate() {
-                if kx != 0.0 {
-                    sum += kx * ky * values[i];
-                }
-            }
+    // Monochrome and RGB cameras: the same sums in the same order as any number of
+    // channels' below, in registers.
+    match dst {
+        [out] => return sum_taps::<1>(&view.image.data, rows(), wx, std::array::from_mut(out)),
+        [_, _, _] => {
+            return sum_taps::<3>(&view.image.data, rows(), wx, dst.try_into().expect("3"))
         }
-        *out = sum;
-        return sum.is_finite();
+        _ => {}
     }
     dst.fill(0.0);
     for (row, ky) in rows() {
@@ -596,6 +591,31 @@ fn lanczos(
         }
     }
     dst.iter().all(|v| v.is_finite())
+}
+
+/// [`lanczos`]'s sums for cameras of `CH` channels: each row's weight `ky` and first pixel
+/// in `rows`, the columns' weights `wx` (zero weights skipped); whether all are finite.
+#[inline(always)]
+fn sum_taps<const CH: usize>(
+    data: &[f32],
+    rows: impl Iterator<Item = (usize, f32)>,
+    wx: &[f32; KERNEL_TAPS],
+    out: &mut [f32; CH],
+) -> bool {
+    let mut sums = [0f32; CH];
+    for (row, ky) in rows {
+        let values = &data[row * CH..][..KERNEL_TAPS * CH];
+        for (i, &kx) in wx.iter().enumerate() {
+            if kx != 0.0 {
+                let k = kx * ky;
+                for (sum, &v) in sums.iter_mut().zip(&values[i * CH..][..CH]) {
+                    *sum += k * v;
+                }
+            }
+        }
+    }
+    *out = sums;
+    sums.iter().all(|v| v.is_finite())
 }
 
 /// `x.round()` (half away from zero) without the call to libm it compiles to on the
@@ -1036,7 +1056,7 @@ mod tests {
     fn the_lanczos_sample_is_the_tap_by_tap_sum_bit_for_bit() {
         let kernel = KernelTable::new();
         let (w, h) = (31usize, 25usize);
-        for ch in [1usize, 3] {
+        for ch in [1usize, 2, 3] {
             let data: Vec<f32> = (0..w * h * ch)
                 .map(|i| match i % 401 {
                     13 => f32::NAN,

@@ -78,11 +78,7 @@ pub fn multi_baseline_disparities(
 ) -> Result<Registration> {
     let network = fast_network(settings)?;
     let (w, h) = (images[0].image.width, images[0].image.height);
-    let coarse_to_fine_here = match settings.coarse_to_fine {
-        CoarseToFine::Auto => w * h >= COARSE_TO_FINE_PIXELS,
-        CoarseToFine::On => true,
-        CoarseToFine::Off => false,
-    };
+    let coarse_to_fine_here = settings.coarse_to_fine.applies(w, h);
     // The coarse level needs room for the tower's receptive field and two disparities.
     let large = coarse_to_fine_here && w >= 2 * MIN_COARSE_SIDE && h >= 2 * MIN_COARSE_SIDE;
     if let Some(previous) = &settings.previous {
