@@ -3,12 +3,12 @@
 //! downsampled 2× or 4× over the widest range at which the outermost views still overlap
 //! (signed: a third of it below zero, for arrays calibrated to a plane), and the 2nd and
 //! 98th percentiles of those disparities, scaled back with a margin, become the
-//! full-resolution range, from the views inside the array ([`ArrayGeometry::interior_views`]) and only
-//! where another view's map confirms them. Where the views themselves go coarse to fine
-//! ([`CoarseToFine::applies`]), so does this registration (its own coarse level 2× coarser
-//! again): the coarse range is several times what the views need. The range starts at 0 unless the coarse
-//! disparities reach below −0.5 coarse pixel, so an array rectified to infinity is searched
-//! from 0 as before.
+//! full-resolution range, from the views inside the array
+//! ([`ArrayGeometry::interior_views`]) and only where another view's map confirms them.
+//! Where the views themselves go coarse to fine ([`CoarseToFine::applies`]), so does this
+//! registration (its own coarse level 2× coarser again): the coarse range is several times
+//! what the views need. The range starts at 0 unless the coarse disparities reach below
+//! −0.5 coarse pixel, so an array rectified to infinity is searched from 0 as before.
 //! A user no longer needs the nearest working distance (`f·b_x / z_min`).
 
 use super::{register_views, ArrayGeometry, CoarseToFine, RegistrationSettings, ViewImage};
