@@ -210,17 +210,35 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The network `--arch` names.
-fn architecture(choice: ArchitectureChoice) -> Architecture {
-    match choice {
+/// The network `--arch` names, with `--feature-maps` if given.
+fn architecture(choice: ArchitectureChoice, feature_maps: Option<u64>) -> Architecture {
+    let mut architecture = match choice {
         ArchitectureChoice::Fast => Architecture::FAST,
         ArchitectureChoice::Accurate => Architecture::ACCURATE,
+    };
+    if let Some(maps) = feature_maps {
+        match &mut architecture {
+            Architecture::Fast { feature_maps, .. }
+            | Architecture::Accurate { feature_maps, .. } => *feature_maps = maps as usize,
+        }
+    }
+    architecture
+}
+
+/// The `--arch` value of an architecture.
+fn architecture_name(architecture: &Architecture) -> &'static str {
+    match architecture {
+        Architecture::Fast { .. } => "fast",
+        Architecture::Accurate { .. } => "accurate",
     }
 }
 
 /// The settings the recipe options ask for, with the defaults for those not given.
 fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
-    let architecture = architecture(args.arch.unwrap_or(ArchitectureChoice::Fast));
+    let architecture = architecture(
+        args.arch.unwrap_or(ArchitectureChoice::Fast),
+        args.feature_maps,
+    );
     let mut settings = TrainSettings::new(architecture);
     if let Some(steps) = args.steps {
         settings.steps = steps as usize;
@@ -279,13 +297,20 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
 
 /// `anaglyph train` with every recipe option spelled out, and the outputs.
 fn recipe_command(settings: &TrainSettings, args: &TrainArgs) -> String {
-    let arch = match settings.architecture {
-        Architecture::Fast { .. } => "fast",
-        Architecture::Accurate { .. } => "accurate",
+    let default_maps = match settings.architecture {
+        Architecture::Fast { .. } => Architecture::FAST.feature_maps(),
+        Architecture::Accurate { .. } => Architecture::ACCURATE.feature_maps(),
+    };
+    let maps = settings.architecture.feature_maps();
+    let width = if maps == default_maps {
+        String::new()
+    } else {
+        format!(" --feature-maps {maps}")
     };
     let mut command = format!(
-        "anaglyph train --arch {arch} --steps {} --seed {} --batch {} --scenes {} \
+        "anaglyph train --arch {}{width} --steps {} --seed {} --batch {} --scenes {} \
          --learning-rate {} --validate-every {} --out {}",
+        architecture_name(&settings.architecture),
         settings.steps,
         settings.seed,
         settings.batch,
@@ -325,12 +350,17 @@ fn recipe_of_checkpoint(
     checkpoint: &Checkpoint,
 ) -> anyhow::Result<TrainSettings> {
     let saved = &checkpoint.settings;
-    let arch = args.arch.map(architecture);
-    let given: [(&str, Option<String>, String); 11] = [
+    let given: [(&str, Option<String>, String); 12] = [
         (
             "--arch",
-            arch.map(|a| format!("{a:?}")),
-            format!("{:?}", saved.architecture),
+            args.arch
+                .map(|a| architecture_name(&architecture(a, None)).to_string()),
+            architecture_name(&saved.architecture).to_string(),
+        ),
+        (
+            "--feature-maps",
+            args.feature_maps.map(|v| v.to_string()),
+            saved.architecture.feature_maps().to_string(),
         ),
         (
             "--steps",

@@ -143,3 +143,70 @@ fn a_run_in_two_segments_writes_the_weights_of_the_run_made_at_once() {
         "{command}"
     );
 }
+
+#[test]
+fn feature_maps_make_a_narrower_network_and_a_resumed_run_keeps_its_width() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let first = [
+        &[
+            "train",
+            "--feature-maps",
+            "8",
+            "--out",
+            "narrow.safetensors",
+            "--checkpoint",
+            "ck",
+            "--stop-at-step",
+            "2",
+        ][..],
+        &TINY,
+    ]
+    .concat();
+    let o = anaglyph(&first, d);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = anaglyph(
+        &[
+            "train",
+            "--resume",
+            "ck",
+            "--out",
+            "x",
+            "--feature-maps",
+            "16",
+        ],
+        d,
+    );
+    assert_clean_failure(&o, "--feature-maps 16: the run checkpointed in ck has 8");
+    let o = anaglyph(&["train", "--out", "x", "--feature-maps", "0"], d);
+    assert_clean_failure(&o, "--feature-maps");
+    // Its own width and `--arch` agree with the checkpoint when given again.
+    let o = anaglyph(
+        &[
+            "train",
+            "--resume",
+            "ck",
+            "--out",
+            "narrow.safetensors",
+            "--arch",
+            "fast",
+            "--feature-maps",
+            "8",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bytes = std::fs::read(d.join("narrow.safetensors")).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    for i in 0..4 {
+        let inputs = if i == 0 { 1 } else { 8 };
+        assert_eq!(
+            header[format!("conv{i}.weight")]["shape"],
+            serde_json::json!([8, inputs, 3, 3]),
+            "conv{i}"
+        );
+    }
+    let command = header["__metadata__"]["command"].as_str().unwrap();
+    assert!(command.contains(" --feature-maps 8 "), "{command}");
+}
