@@ -4,11 +4,12 @@ ANAGLYPH_NO_AMX=1, f32 where the CPU has AMX tiles), alternating, each run a fre
 under /usr/bin/time -v.
 
     cargo build --release
-    python3 scripts/time_match.py [RUNS] [BEFORE_BINARY] [AFTER_BINARY]
+    python3 scripts/time_match.py [RUNS] [BEFORE_BINARY] [AFTER_BINARY] [--model M]
 
 BEFORE_BINARY is another build (for example of an earlier commit, built with
 CARGO_TARGET_DIR elsewhere); without it only the current build is timed, with and without
-AMX. Prints the median and range of each figure over RUNS runs, and each map's bad-1 and
+AMX. `--model M` also times the current build with the network M (`match --model`).
+Prints the median and range of each figure over RUNS runs, and each map's bad-1 and
 bad-2 against the simulator's truth.
 """
 
@@ -45,14 +46,26 @@ def bad(truth: list[float], estimate: list[float], threshold: float) -> float:
 
 
 def main() -> None:
-    runs = int(sys.argv[1]) if len(sys.argv) > 1 else 5
-    after = Path(sys.argv[3]) if len(sys.argv) > 3 else REPO / "target/release/anaglyph"
-    modes: dict[str, tuple[Path, dict[str, str]]] = {}
-    if len(sys.argv) > 2:
-        modes["before"] = (Path(sys.argv[2]), {})
-    modes["after, ANAGLYPH_NO_AMX=1"] = (after, {"ANAGLYPH_NO_AMX": "1"})
-    modes["after"] = (after, {})
-    for binary, _ in modes.values():
+    args = sys.argv[1:]
+    model = None
+    if "--model" in args:
+        at = args.index("--model")
+        if at + 1 >= len(args):
+            sys.exit("--model: expected a safetensors file after it")
+        model = Path(args[at + 1]).resolve()
+        del args[at : at + 2]
+        if not model.is_file():
+            sys.exit(f"--model {model}: no such file")
+    runs = int(args[0]) if args else 5
+    after = Path(args[2]) if len(args) > 2 else REPO / "target/release/anaglyph"
+    modes: dict[str, tuple[Path, dict[str, str], list[str]]] = {}
+    if len(args) > 1:
+        modes["before"] = (Path(args[1]), {}, [])
+    modes["after, ANAGLYPH_NO_AMX=1"] = (after, {"ANAGLYPH_NO_AMX": "1"}, [])
+    modes["after"] = (after, {}, [])
+    if model is not None:
+        modes[f"after, --model {model.name}"] = (after, {}, ["--model", str(model)])
+    for binary, _, _ in modes.values():
         if not binary.is_file():
             sys.exit(f"{binary}: no such binary (run `cargo build --release` first)")
     work = Path(tempfile.mkdtemp(prefix="time_match-"))
@@ -64,11 +77,12 @@ def main() -> None:
     )
     figures: dict[str, dict[str, list[float]]] = {m: {"wall": [], "peak MB": []} for m in modes}
     for _ in range(runs):
-        for k, (name, (binary, env)) in enumerate(modes.items()):
+        for k, (name, (binary, env, extra)) in enumerate(modes.items()):
             out = subprocess.run(
                 ["/usr/bin/time", "-v", str(binary), "match",
                  "--left", "sim/captures/r0c0.png", "--right", "sim/captures/r0c1.png",
-                 "--disp-range", "0:64", "--out", f"d{k}.pfm", "--report", f"r{k}.json"],
+                 "--disp-range", "0:64", "--out", f"d{k}.pfm", "--report", f"r{k}.json",
+                 *extra],
                 cwd=work, env={**os.environ, **env}, capture_output=True, text=True,
             )
             if out.returncode != 0:

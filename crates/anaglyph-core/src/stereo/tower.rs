@@ -580,6 +580,34 @@ mod tests {
         }
     }
 
+    #[test]
+    fn the_dispatched_winograd_rows_are_the_portable_ones_bit_for_bit() {
+        // Channel counts that fill the AVX2 transforms' lanes, leave a remainder, or are
+        // all remainder; widths with a ragged last run and last tile.
+        for (w, h, cin, cout) in [
+            (37, 9, 16, 24),
+            (133, 6, 9, 12),
+            (5, 5, 3, 7),
+            (2, 3, 32, 32),
+        ] {
+            let (input, layer) = random_convolution((w, h, cin, cout), 7);
+            let kernels = transform_kernels(&layer);
+            for relu in [false, true] {
+                let len = h * w * cout;
+                let (mut fast, mut portable) = (vec![0f32; len], vec![0f32; len]);
+                let placement = (&layer, kernels.as_slice(), relu);
+                let mut scratch = WinogradScratch::default();
+                winograd_convolve_rows(&input, placement, 0..h, &mut fast, &mut scratch);
+                portable_convolve_rows(&input, placement, 0..h, &mut portable, &mut scratch);
+                let differ = fast
+                    .iter()
+                    .zip(&portable)
+                    .filter(|(a, b)| a.to_bits() != b.to_bits());
+                assert_eq!(differ.count(), 0, "{w}x{h}, {cin}->{cout}, relu {relu}");
+            }
+        }
+    }
+
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn tile_rows_match_the_direct_convolution_of_the_rounded_values() {

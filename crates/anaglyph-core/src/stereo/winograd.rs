@@ -101,6 +101,176 @@ fn transform_channels<const N: usize>(
     }
 }
 
+/// The two 1-D transforms over whole channel vectors ([`transform_channels`] of
+/// [`input_transform`] and of [`output_transform`]): [`Portable`], or [`Avx2`] with the
+/// same arithmetic in the same order, so bit for bit the same values.
+trait Transforms: Copy {
+    fn inputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; TILE]);
+    fn outputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; OUT]);
+}
+
+/// The transforms in portable code, one channel at a time.
+#[derive(Clone, Copy)]
+struct Portable;
+
+impl Transforms for Portable {
+    #[inline(always)]
+    fn inputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; TILE]) {
+        transform_channels(inputs, outputs, input_transform);
+    }
+    #[inline(always)]
+    fn outputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; OUT]) {
+        transform_channels(inputs, outputs, output_transform);
+    }
+}
+
+/// The transforms eight channels at a time in AVX registers (the rest as [`Portable`]).
+/// Only made where the CPU has AVX2 and FMA ([`Avx2::new`]).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct Avx2 {
+    _checked: (),
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2 {
+    fn new() -> Option<Self> {
+        crate::cpu::has_avx2_fma().then_some(Avx2 { _checked: () })
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Transforms for Avx2 {
+    #[inline(always)]
+    fn inputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; TILE]) {
+        // SAFETY: an `Avx2` exists only where the CPU has AVX2 and FMA.
+        unsafe { avx2::inputs(inputs, outputs) }
+    }
+    #[inline(always)]
+    fn outputs(self, inputs: [&[f32]; TILE], outputs: [&mut [f32]; OUT]) {
+        // SAFETY: as above.
+        unsafe { avx2::outputs(inputs, outputs) }
+    }
+}
+
+/// [`input_transform`] and [`output_transform`] on eight channels at once: the same
+/// multiplications, additions and subtractions in the same order (no fused
+/// multiply-adds), so the same values bit for bit.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{input_transform, output_transform, transform_channels, OUT, TILE};
+    use std::arch::x86_64::*;
+
+    const LANES: usize = 8;
+
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn inputs(inputs: [&[f32]; TILE], outputs: [&mut [f32]; TILE]) {
+        let n = outputs[0].len();
+        for o in &outputs {
+            assert_eq!(o.len(), n);
+        }
+        let [i0, i1, i2, i3, i4, i5] = inputs;
+        let (i0, i1, i2, i3, i4, i5) = (&i0[..n], &i1[..n], &i2[..n], &i3[..n], &i4[..n], &i5[..n]);
+        let [o0, o1, o2, o3, o4, o5] = outputs;
+        let blocks = n / LANES * LANES;
+        let (two, four, five, minus_four) = (
+            _mm256_set1_ps(2.0),
+            _mm256_set1_ps(4.0),
+            _mm256_set1_ps(5.0),
+            _mm256_set1_ps(-4.0),
+        );
+        for c in (0..blocks).step_by(LANES) {
+            // SAFETY: c + 8 ≤ n, the length of every input and output.
+            unsafe {
+                let load = |s: &[f32]| _mm256_loadu_ps(s.as_ptr().add(c));
+                let (d0, d1, d2, d3, d4, d5) =
+                    (load(i0), load(i1), load(i2), load(i3), load(i4), load(i5));
+                let v0 = _mm256_add_ps(
+                    _mm256_sub_ps(_mm256_mul_ps(four, d0), _mm256_mul_ps(five, d2)),
+                    d4,
+                );
+                let v1 = _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(minus_four, _mm256_add_ps(d1, d2)), d3),
+                    d4,
+                );
+                let v2 = _mm256_add_ps(
+                    _mm256_sub_ps(_mm256_mul_ps(four, _mm256_sub_ps(d1, d2)), d3),
+                    d4,
+                );
+                let v3 = _mm256_add_ps(
+                    _mm256_sub_ps(_mm256_mul_ps(two, _mm256_sub_ps(d3, d1)), d2),
+                    d4,
+                );
+                let v4 = _mm256_add_ps(
+                    _mm256_sub_ps(_mm256_mul_ps(two, _mm256_sub_ps(d1, d3)), d2),
+                    d4,
+                );
+                let v5 = _mm256_add_ps(
+                    _mm256_sub_ps(_mm256_mul_ps(four, d1), _mm256_mul_ps(five, d3)),
+                    d5,
+                );
+                _mm256_storeu_ps(o0.as_mut_ptr().add(c), v0);
+                _mm256_storeu_ps(o1.as_mut_ptr().add(c), v1);
+                _mm256_storeu_ps(o2.as_mut_ptr().add(c), v2);
+                _mm256_storeu_ps(o3.as_mut_ptr().add(c), v3);
+                _mm256_storeu_ps(o4.as_mut_ptr().add(c), v4);
+                _mm256_storeu_ps(o5.as_mut_ptr().add(c), v5);
+            }
+        }
+        if blocks < n {
+            let tail = [i0, i1, i2, i3, i4, i5].map(|s| &s[blocks..]);
+            let outputs = [o0, o1, o2, o3, o4, o5].map(|o| &mut o[blocks..]);
+            transform_channels(tail, outputs, input_transform);
+        }
+    }
+
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn outputs(inputs: [&[f32]; TILE], outputs: [&mut [f32]; OUT]) {
+        let n = outputs[0].len();
+        for o in &outputs {
+            assert_eq!(o.len(), n);
+        }
+        let [m0, m1, m2, m3, m4, m5] = inputs;
+        let (m0, m1, m2, m3, m4, m5) = (&m0[..n], &m1[..n], &m2[..n], &m3[..n], &m4[..n], &m5[..n]);
+        let [o0, o1, o2, o3] = outputs;
+        let blocks = n / LANES * LANES;
+        let (two, four, eight) = (
+            _mm256_set1_ps(2.0),
+            _mm256_set1_ps(4.0),
+            _mm256_set1_ps(8.0),
+        );
+        for c in (0..blocks).step_by(LANES) {
+            // SAFETY: c + 8 ≤ n, the length of every input and output.
+            unsafe {
+                let load = |s: &[f32]| _mm256_loadu_ps(s.as_ptr().add(c));
+                let (v0, v1, v2, v3, v4, v5) =
+                    (load(m0), load(m1), load(m2), load(m3), load(m4), load(m5));
+                let (sum12, diff12) = (_mm256_add_ps(v1, v2), _mm256_sub_ps(v1, v2));
+                let (sum34, diff34) = (_mm256_add_ps(v3, v4), _mm256_sub_ps(v3, v4));
+                let r0 = _mm256_add_ps(_mm256_add_ps(v0, sum12), sum34);
+                let r1 = _mm256_add_ps(diff12, _mm256_mul_ps(two, diff34));
+                let r2 = _mm256_add_ps(sum12, _mm256_mul_ps(four, sum34));
+                let r3 = _mm256_add_ps(_mm256_add_ps(diff12, _mm256_mul_ps(eight, diff34)), v5);
+                _mm256_storeu_ps(o0.as_mut_ptr().add(c), r0);
+                _mm256_storeu_ps(o1.as_mut_ptr().add(c), r1);
+                _mm256_storeu_ps(o2.as_mut_ptr().add(c), r2);
+                _mm256_storeu_ps(o3.as_mut_ptr().add(c), r3);
+            }
+        }
+        if blocks < n {
+            let tail = [m0, m1, m2, m3, m4, m5].map(|s| &s[blocks..]);
+            let outputs = [o0, o1, o2, o3].map(|o| &mut o[blocks..]);
+            transform_channels(tail, outputs, output_transform);
+        }
+    }
+}
+
 /// A run of tiles: the top-left output pixel `(x0, y0)` of the first and how many follow
 /// along the row.
 #[derive(Clone, Copy)]
@@ -117,49 +287,92 @@ impl TileRun {
     }
 }
 
+/// The six slices `data[offset + i·stride ..][..n]`, i = 0 … 5.
+#[inline(always)]
+fn six(data: &[f32], offset: usize, stride: usize, n: usize) -> [&[f32]; TILE] {
+    [
+        &data[offset..][..n],
+        &data[offset + stride..][..n],
+        &data[offset + 2 * stride..][..n],
+        &data[offset + 3 * stride..][..n],
+        &data[offset + 4 * stride..][..n],
+        &data[offset + 5 * stride..][..n],
+    ]
+}
+
+/// `data` cut into rows of `stride` (the last may be shorter), `n` values of each from
+/// `offset`: the first four.
+#[inline(always)]
+fn four_mut(data: &mut [f32], offset: usize, stride: usize, n: usize) -> [&mut [f32]; OUT] {
+    let mut rows = data.chunks_mut(stride);
+    let mut next = || &mut rows.next().expect("four rows")[offset..][..n];
+    [next(), next(), next(), next()]
+}
+
+/// [`four_mut`]'s first six.
+#[inline(always)]
+fn six_mut(data: &mut [f32], offset: usize, stride: usize, n: usize) -> [&mut [f32]; TILE] {
+    let mut rows = data.chunks_mut(stride);
+    let mut next = || &mut rows.next().expect("six rows")[offset..][..n];
+    [next(), next(), next(), next(), next(), next()]
+}
+
 /// The input tiles of a run in the transform domain,
 /// `transformed[(point·run.tiles + tile)·inputs + c]`, in two passes: Bᵀ down the six
-/// input rows of every column the run reads (into `band`, row i of the result at
-/// `band[(i·columns + column)·inputs + c]`; each column once, though neighbouring tiles
-/// share two), then B along each tile's six columns.
+/// input rows, over all the columns the run reads at once (into `band`, row i of the
+/// result at `band[(i·columns + column)·inputs + c]`; columns outside the image are
+/// zeros), then B along each tile's six columns.
 #[inline(always)]
 fn transform_inputs(
+    transforms: impl Transforms,
     input: &FeatureMap,
     run: TileRun,
     (band, zeros): (&mut [f32], &[f32]),
     transformed: &mut [f32],
 ) {
     let (w, h, cin) = (input.width, input.height, input.channels);
-    let columns = run.columns();
-    let band = &mut band[..TILE * columns * cin];
-    for column in 0..columns {
-        let xx = (run.x0 + column).wrapping_sub(1);
-        let rows: [&[f32]; TILE] = std::array::from_fn(|i| {
-            let yy = (run.y0 + i).wrapping_sub(1);
-            if yy < h && xx < w {
-                input.pixel(xx, yy)
-            } else {
-                zeros
-            }
-        });
-        let mut band_rows = band.chunks_exact_mut(columns * cin);
-        let outputs: [&mut [f32]; TILE] = std::array::from_fn(|_| {
-            let row = band_rows.next().expect("six band rows");
-            &mut row[column * cin..][..cin]
-        });
-        transform_channels(rows, outputs, input_transform);
+    let (columns, tiles) = (run.columns(), run.tiles);
+    let span = columns * cin;
+    let band = &mut band[..TILE * span];
+    // Column 0 of the run is image column x0 − 1, outside the image where x0 = 0.
+    let lead = usize::from(run.x0 == 0);
+    let first = run.x0 + lead - 1;
+    let inside = (columns - lead).min(w - first);
+    let rows: [&[f32]; TILE] = std::array::from_fn(|i| {
+        let yy = (run.y0 + i).wrapping_sub(1);
+        if yy < h {
+            &input.data[(yy * w + first) * cin..][..inside * cin]
+        } else {
+            &zeros[..inside * cin]
+        }
+    });
+    for row in band.chunks_exact_mut(span) {
+        row[..lead * cin].fill(0.0);
+        row[(lead + inside) * cin..].fill(0.0);
     }
-    let mut points = transformed[..POINTS * run.tiles * cin].chunks_exact_mut(run.tiles * cin);
-    let mut points: [&mut [f32]; POINTS] = std::array::from_fn(|_| points.next().expect("36"));
-    for (i, band_row) in band.chunks_exact(columns * cin).enumerate() {
-        for tile in 0..run.tiles {
-            let tile_columns: [&[f32]; TILE] =
-                std::array::from_fn(|j| &band_row[(tile * OUT + j) * cin..][..cin]);
-            let [p0, p1, p2, p3, p4, p5] = &mut points[i * TILE..(i + 1) * TILE] else {
-                unreachable!("six points per row of the tile")
-            };
-            let outputs = [p0, p1, p2, p3, p4, p5].map(|p| &mut p[tile * cin..][..cin]);
-            transform_channels(tile_columns, outputs, input_transform);
+    let outputs = six_mut(band, lead * cin, span, inside * cin);
+    transforms.inputs(rows, outputs);
+    let points = &mut transformed[..POINTS * tiles * cin];
+    for (i, band_row) in band.chunks_exact(span).enumerate() {
+        let mut points = six_mut(
+            &mut points[i * TILE * tiles * cin..],
+            0,
+            tiles * cin,
+            tiles * cin,
+        );
+        for tile in 0..tiles {
+            let [p0, p1, p2, p3, p4, p5] = &mut points;
+            let at = tile * cin..(tile + 1) * cin;
+            let outputs = [
+                &mut p0[at.clone()],
+                &mut p1[at.clone()],
+                &mut p2[at.clone()],
+                &mut p3[at.clone()],
+                &mut p4[at.clone()],
+                &mut p5[at],
+            ];
+            let tile_columns = six(band_row, tile * OUT * cin, cin, cin);
+            transforms.inputs(tile_columns, outputs);
         }
     }
 }
@@ -171,6 +384,7 @@ fn transform_inputs(
 /// along each of its four rows (into `pixels`, then biased into `out`).
 #[inline(always)]
 fn transform_outputs(
+    transforms: impl Transforms,
     products: &[f32],
     (layer, relu): (&ConvLayer, bool),
     (run, w, rows): (TileRun, usize, usize),
@@ -179,29 +393,36 @@ fn transform_outputs(
 ) {
     let (cout, tiles) = (layer.outputs, run.tiles);
     let (half, pixels) = (&mut half[..OUT * TILE * cout], &mut pixels[..OUT * cout]);
+    let bias = &layer.bias[..cout];
     for tile in 0..tiles {
         let x0 = run.x0 + tile * OUT;
-        for j in 0..TILE {
-            let column: [&[f32]; TILE] = std::array::from_fn(|i| {
-                &products[((i * TILE + j) * tiles + tile) * cout..][..cout]
-            });
-            let mut half_rows = half.chunks_exact_mut(TILE * cout);
-            let outputs: [&mut [f32]; OUT] = std::array::from_fn(|_| {
-                let row = half_rows.next().expect("four rows");
-                &mut row[j * cout..][..cout]
-            });
-            transform_channels(column, outputs, output_transform);
+        {
+            let [h0, h1, h2, h3] = four_mut(half, 0, TILE * cout, TILE * cout);
+            for j in 0..TILE {
+                let at = j * cout..(j + 1) * cout;
+                let column = six(
+                    products,
+                    (j * tiles + tile) * cout,
+                    TILE * tiles * cout,
+                    cout,
+                );
+                let outputs = [
+                    &mut h0[at.clone()],
+                    &mut h1[at.clone()],
+                    &mut h2[at.clone()],
+                    &mut h3[at],
+                ];
+                transforms.outputs(column, outputs);
+            }
         }
         let columns = OUT.min(w - x0);
         for (k, half_row) in half.chunks_exact(TILE * cout).enumerate().take(rows) {
-            let inputs: [&[f32]; TILE] = std::array::from_fn(|j| &half_row[j * cout..][..cout]);
-            let mut tile_row = pixels.chunks_exact_mut(cout);
-            let outputs: [&mut [f32]; OUT] =
-                std::array::from_fn(|_| tile_row.next().expect("four pixels"));
-            transform_channels(inputs, outputs, output_transform);
+            let inputs = six(half_row, 0, cout, cout);
+            let outputs = four_mut(pixels, 0, cout, cout);
+            transforms.outputs(inputs, outputs);
             let dst = &mut out[(k * w + x0) * cout..][..columns * cout];
             for (dst, src) in dst.chunks_exact_mut(cout).zip(pixels.chunks_exact(cout)) {
-                for ((d, s), b) in dst.iter_mut().zip(src).zip(&layer.bias) {
+                for ((d, s), b) in dst.iter_mut().zip(src).zip(bias) {
                     let v = s + b;
                     *d = if relu { v.max(0.0) } else { v };
                 }
@@ -232,7 +453,7 @@ impl WinogradScratch {
         self.transformed.resize(POINTS * RUN_TILES * cin, 0.0);
         self.products.resize(POINTS * RUN_TILES * cout, 0.0);
         self.band.resize(TILE * columns * cin, 0.0);
-        self.zeros.resize(cin, 0.0);
+        self.zeros.resize(columns * cin, 0.0);
         self.half.resize(OUT * TILE * cout, 0.0);
         self.pixels.resize(OUT * cout, 0.0);
     }
@@ -241,8 +462,9 @@ impl WinogradScratch {
 /// Output rows `rows` of one "same" 3×3 convolution of `input` (rows outside it read as
 /// zeros) plus bias, optionally rectified, into `out` (`rows.len() × width × outputs`);
 /// `kernels` from [`transform_kernels`]. The same result as the direct convolution up to
-/// float rounding. Single-threaded: callers parallelise. The transforms run compiled for
-/// AVX2 and FMA where the CPU has them, else portable.
+/// float rounding. Single-threaded: callers parallelise. The transforms run in AVX
+/// registers where the CPU has AVX2 and FMA ([`Avx2`]), else portable; the values are the
+/// same bit for bit.
 pub(crate) fn winograd_convolve_rows(
     input: &FeatureMap,
     layer: (&ConvLayer, &[f32], bool),
@@ -251,35 +473,48 @@ pub(crate) fn winograd_convolve_rows(
     scratch: &mut WinogradScratch,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if crate::cpu::has_avx2_fma() {
-        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-        unsafe { convolve_rows_avx2(input, layer, rows, out, scratch) };
+    if let Some(avx2) = Avx2::new() {
+        // SAFETY: `Avx2::new` checked that the CPU supports AVX2 and FMA.
+        unsafe { convolve_rows_avx2(avx2, input, layer, rows, out, scratch) };
         return;
     }
     convolve_rows(input, layer, rows, out, scratch);
 }
 
-/// [`convolve_rows`] compiled for AVX2 and FMA.
+/// [`convolve_rows`] compiled for AVX2 and FMA, with the [`Avx2`] transforms.
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn convolve_rows_avx2(
+    avx2: Avx2,
     input: &FeatureMap,
     layer: (&ConvLayer, &[f32], bool),
     rows: Range<usize>,
     out: &mut [f32],
     scratch: &mut WinogradScratch,
 ) {
-    convolve_rows(input, layer, rows, out, scratch)
+    convolve_rows_with(avx2, input, layer, rows, out, scratch)
 }
 
 /// [`winograd_convolve_rows`] in portable code (its twin, which the tests check against
-/// the direct convolution too): runs of tiles transformed, multiplied point by point
-/// (`gemm`) and transformed back.
-#[inline(always)]
+/// the direct convolution, and bit for bit against the AVX2 one).
 pub(crate) fn convolve_rows(
+    input: &FeatureMap,
+    layer: (&ConvLayer, &[f32], bool),
+    rows: Range<usize>,
+    out: &mut [f32],
+    scratch: &mut WinogradScratch,
+) {
+    convolve_rows_with(Portable, input, layer, rows, out, scratch)
+}
+
+/// Runs of tiles transformed (by `transforms`), multiplied point by point (`gemm`) and
+/// transformed back.
+#[inline(always)]
+fn convolve_rows_with(
+    transforms: impl Transforms,
     input: &FeatureMap,
     (layer, kernels, relu): (&ConvLayer, &[f32], bool),
     rows: Range<usize>,
@@ -299,7 +534,8 @@ pub(crate) fn convolve_rows(
                 tiles: RUN_TILES.min(tiles_x - first),
             };
             let t = run.tiles;
-            transform_inputs(input, run, (&mut s.band, &s.zeros), &mut s.transformed);
+            let scratch = (&mut s.band[..], &s.zeros[..]);
+            transform_inputs(transforms, input, run, scratch, &mut s.transformed);
             for point in 0..POINTS {
                 matmul(
                     &mut s.products[point * t * cout..][..t * cout],
@@ -312,7 +548,8 @@ pub(crate) fn convolve_rows(
             }
             let placement = (run, w, tile_rows);
             let buffers = (&mut s.half[..], &mut s.pixels[..]);
-            transform_outputs(&s.products, (layer, relu), placement, buffers, out);
+            let layer = (layer, relu);
+            transform_outputs(transforms, &s.products, layer, placement, buffers, out);
         }
     }
 }
