@@ -3,31 +3,36 @@
 //! side, mismatches by the median of the nearest consistent pixels in 16 directions), a
 //! 5×5 median filter and an intensity-gated bilateral filter. NaN marks invalid pixels.
 
-use super::cost_volume::matched_indices;
+use super::cost_volume::{matched_indices, right_column};
 use super::{CostVolume, DisparityRange, GreyImage, LEFT_RIGHT_TOLERANCE};
 use rayon::prelude::*;
 
 /// The right view's winner-take-all disparities from the left volume
-/// (`d_R(x) = argmin_d C(x + d, d)` over the d whose left pixel is inside the image).
+/// (`d_R(x) = argmin_d C(x + d, d)` over the d whose left pixel is inside the image, the
+/// lowest d of equal costs). One pass over each row of the volume in its own order, each
+/// cost compared with the best so far of the right pixel it matches.
 pub fn right_disparity(volume: &CostVolume) -> Vec<f32> {
     let (w, h, dm, range) = (volume.width, volume.height, volume.count(), volume.range);
     let mut out = vec![0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (xr, value) in row.iter_mut().enumerate() {
-            // Left pixel x = xr + min + k lies inside the image for these k.
-            let first = -(xr as i64) - range.min as i64;
-            let clamp = |v: i64| v.clamp(0, dm as i64) as usize;
-            let (mut best, mut best_cost) = (0, f32::INFINITY);
-            for k in clamp(first)..clamp(first + w as i64) {
-                let x = (xr as i64 + range.min as i64 + k as i64) as usize;
-                let c = volume.data[(y * w + x) * dm + k];
-                if c < best_cost {
-                    (best, best_cost) = (k, c);
+    out.par_chunks_mut(w).enumerate().for_each_init(
+        || (vec![0usize; w], vec![0f32; w]),
+        |(best, best_cost), (y, row)| {
+            best.fill(0);
+            best_cost.fill(f32::INFINITY);
+            let costs = &volume.data[y * w * dm..][..w * dm];
+            for (x, pixel) in costs.chunks_exact(dm).enumerate() {
+                for k in matched_indices(x, w, range) {
+                    let xr = right_column(x, k, range);
+                    if pixel[k] < best_cost[xr] {
+                        (best[xr], best_cost[xr]) = (k, pixel[k]);
+                    }
                 }
             }
-            *value = range.at(best);
-        }
-    });
+            for (value, &k) in row.iter_mut().zip(best.iter()) {
+                *value = range.at(k);
+            }
+        },
+    );
     out
 }
 
@@ -368,6 +373,53 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// [`right_disparity`] by its definition: for each right pixel, the left pixels it
+    /// matches in order of disparity.
+    fn right_disparity_by_definition(volume: &CostVolume) -> Vec<f32> {
+        let (w, h, dm, range) = (volume.width, volume.height, volume.count(), volume.range);
+        let mut out = vec![0f32; w * h];
+        for y in 0..h {
+            for xr in 0..w {
+                let (mut best, mut best_cost) = (0, f32::INFINITY);
+                for k in 0..dm {
+                    let x = xr as i64 + range.min as i64 + k as i64;
+                    if (0..w as i64).contains(&x) {
+                        let c = volume.data[(y * w + x as usize) * dm + k];
+                        if c < best_cost {
+                            (best, best_cost) = (k, c);
+                        }
+                    }
+                }
+                out[y * w + xr] = range.at(best);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_right_disparities_are_those_of_the_definition() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for (w, h, min, max) in [
+            (23, 4, 0, 9),
+            (17, 3, -6, 5),
+            (5, 2, -3, 12),
+            (30, 2, 4, 10),
+        ] {
+            let range = DisparityRange::new(min, max).unwrap();
+            let mut volume = CostVolume::new(w, h, range);
+            for v in volume.data.iter_mut() {
+                // Few levels, so that ties are common; some NaN.
+                *v = match rng.random_range(0..10) {
+                    0 => f32::NAN,
+                    _ => rng.random_range(0..4) as f32,
+                };
+            }
+            let got = right_disparity(&volume);
+            let want = right_disparity_by_definition(&volume);
+            assert_eq!(got, want, "{w}x{h} over {min}:{max}");
+        }
     }
 
     #[test]
