@@ -57,10 +57,10 @@ def main() -> None:
         if not model.is_file():
             sys.exit(f"--model {model}: no such file")
     runs = int(args[0]) if args else 5
-    after = Path(args[2]) if len(args) > 2 else REPO / "target/release/anaglyph"
+    after = Path(args[2]).resolve() if len(args) > 2 else REPO / "target/release/anaglyph"
     modes: dict[str, tuple[Path, dict[str, str], list[str]]] = {}
     if len(args) > 1:
-        modes["before"] = (Path(args[1]), {}, [])
+        modes["before"] = (Path(args[1]).resolve(), {}, [])
     modes["after, ANAGLYPH_NO_AMX=1"] = (after, {"ANAGLYPH_NO_AMX": "1"}, [])
     modes["after"] = (after, {}, [])
     if model is not None:
