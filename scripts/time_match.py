@@ -4,11 +4,12 @@ ANAGLYPH_NO_AMX=1, f32 where the CPU has AMX tiles), alternating, each run a fre
 under /usr/bin/time -v.
 
     cargo build --release
-    python3 scripts/time_match.py [RUNS] [BEFORE_BINARY] [AFTER_BINARY] [--model M]
+    python3 scripts/time_match.py [RUNS] [BEFORE_BINARY] [AFTER_BINARY] [--model M] [--method NAME]
 
 BEFORE_BINARY is another build (for example of an earlier commit, built with
 CARGO_TARGET_DIR elsewhere); without it only the current build is timed, with and without
-AMX. `--model M` also times the current build with the network M (`match --model`).
+AMX. `--model M` and `--method NAME` also time the current build with the network M
+(`match --model`) or the method NAME (`match --method`, for example `mccnn-lean`).
 Prints the median and range of each figure over RUNS runs, and each map's bad-1 and
 bad-2 against the simulator's truth.
 """
@@ -56,6 +57,13 @@ def main() -> None:
         del args[at : at + 2]
         if not model.is_file():
             sys.exit(f"--model {model}: no such file")
+    method = None
+    if "--method" in args:
+        at = args.index("--method")
+        if at + 1 >= len(args):
+            sys.exit("--method: expected a method name after it")
+        method = args[at + 1]
+        del args[at : at + 2]
     runs = int(args[0]) if args else 5
     after = Path(args[2]).resolve() if len(args) > 2 else REPO / "target/release/anaglyph"
     modes: dict[str, tuple[Path, dict[str, str], list[str]]] = {}
@@ -65,6 +73,8 @@ def main() -> None:
     modes["after"] = (after, {}, [])
     if model is not None:
         modes[f"after, --model {model.name}"] = (after, {}, ["--model", str(model)])
+    if method is not None:
+        modes[f"after, --method {method}"] = (after, {}, ["--method", method])
     for binary, _, _ in modes.values():
         if not binary.is_file():
             sys.exit(f"{binary}: no such binary (run `cargo build --release` first)")

@@ -351,10 +351,9 @@ const RIG_NEIGHBOURS: [[&str; 2]; 6] = [
     ["gel_yellow_green", "gel_emerald"],
 ];
 
+/// Both built-in fast networks: the default and the lean one (32 maps a layer).
 #[test]
 fn the_learned_cost_beats_census_across_the_rig_and_stays_near_homogeneous() {
-    let network = MatchingNetwork::default_fast().unwrap();
-    let learned = MatchingCost::Learned(&network);
     let mean = |cost: &MatchingCost<'_>| {
         RIG_NEIGHBOURS
             .iter()
@@ -362,26 +361,32 @@ fn the_learned_cost_beats_census_across_the_rig_and_stays_near_homogeneous() {
             .sum::<f64>()
             / RIG_NEIGHBOURS.len() as f64
     };
-    let heterogeneous = mean(&learned);
     let census = mean(&MatchingCost::Census);
     let zncc = mean(&MatchingCost::Zncc);
-    let homogeneous = chain_bad2(["gel_teal", "gel_teal"], &learned);
-    eprintln!(
-        "rig neighbours: learned {heterogeneous:.2} %, census {census:.2} %, zncc {zncc:.2} %; \
-         learned homogeneous {homogeneous:.2} %"
-    );
-    assert!(
-        heterogeneous < LEARNED_HETEROGENEOUS_BOUND,
-        "learned heterogeneous {heterogeneous}"
-    );
-    assert!(
-        heterogeneous < 0.8 * census,
-        "learned {heterogeneous} vs census {census}"
-    );
-    assert!(
-        homogeneous < LEARNED_HOMOGENEOUS_BOUND,
-        "learned homogeneous {homogeneous}"
-    );
+    for (name, network) in [
+        ("default", MatchingNetwork::default_fast().unwrap()),
+        ("lean", MatchingNetwork::lean_fast().unwrap()),
+    ] {
+        let learned = MatchingCost::Learned(&network);
+        let heterogeneous = mean(&learned);
+        let homogeneous = chain_bad2(["gel_teal", "gel_teal"], &learned);
+        eprintln!(
+            "rig neighbours: {name} network {heterogeneous:.2} %, census {census:.2} %, zncc \
+             {zncc:.2} %; {name} homogeneous {homogeneous:.2} %"
+        );
+        assert!(
+            heterogeneous < LEARNED_HETEROGENEOUS_BOUND,
+            "{name} heterogeneous {heterogeneous}"
+        );
+        assert!(
+            heterogeneous < 0.8 * census,
+            "{name} {heterogeneous} vs census {census}"
+        );
+        assert!(
+            homogeneous < LEARNED_HOMOGENEOUS_BOUND,
+            "{name} homogeneous {homogeneous}"
+        );
+    }
 }
 
 /// A rig pair with its right capture's contrast inverted: the learned cost's chain with the

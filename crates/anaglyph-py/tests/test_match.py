@@ -25,7 +25,7 @@ def textured_pair(contrast: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     return left.astype(np.float32), right.astype(np.float32)
 
 
-@pytest.mark.parametrize("method", ["census", "mccnn"])
+@pytest.mark.parametrize("method", ["census", "mccnn", "mccnn-lean"])
 def test_a_shifted_texture_gives_its_shift(method):
     left, right = textured_pair()
     d, info = anaglyph.match(left, right, disp_range=(0, 16), method=method, return_info=True)

@@ -20,6 +20,8 @@ pub enum MatchMethod {
     /// The learned cross-spectral cost, MC-CNN fast (weights built in).
     #[default]
     Mccnn,
+    /// MC-CNN fast with 32 maps per layer (weights built in): about twice as fast.
+    MccnnLean,
     /// MC-CNN accurate (its weights are not built in: give a model file).
     MccnnAccurate,
     /// Census transform, 7×9 window.
@@ -32,6 +34,7 @@ pub enum MatchMethod {
 
 named_choices!(MatchMethod, "matching method" {
     Mccnn = "mccnn" "Learned cross-spectral cost, MC-CNN fast (the default).",
+    MccnnLean = "mccnn-lean" "MC-CNN fast with 32 maps a layer: about twice as fast, a little less accurate across channels.",
     MccnnAccurate = "mccnn-accurate" "MC-CNN accurate (needs a model: its weights are not embedded).",
     Census = "census" "Census transform, 7x9 window.",
     Zncc = "zncc" "Zero-mean normalised cross-correlation, 9x9 window.",
@@ -41,7 +44,10 @@ named_choices!(MatchMethod, "matching method" {
 impl MatchMethod {
     /// Whether the method is a learned cost.
     pub fn is_learned(self) -> bool {
-        matches!(self, MatchMethod::Mccnn | MatchMethod::MccnnAccurate)
+        matches!(
+            self,
+            MatchMethod::Mccnn | MatchMethod::MccnnLean | MatchMethod::MccnnAccurate
+        )
     }
 
     /// The network the method needs (None for the classical costs): the weights at
@@ -51,6 +57,7 @@ impl MatchMethod {
         let network = match (self, model) {
             (m, Some(path)) if m.is_learned() => MatchingNetwork::load(path)?,
             (MatchMethod::Mccnn, None) => MatchingNetwork::default_fast()?,
+            (MatchMethod::MccnnLean, None) => MatchingNetwork::lean_fast()?,
             (MatchMethod::MccnnAccurate, None) => {
                 return Err(Error::unusable(
                     "method mccnn-accurate",
@@ -61,7 +68,7 @@ impl MatchMethod {
                 return Err(Error::unusable(
                     format!("model {}", path.display()),
                     format!(
-                        "method {m} is not learned (a model applies to mccnn or mccnn-accurate)"
+                        "method {m} is not learned (a model applies to mccnn, mccnn-lean or mccnn-accurate)"
                     ),
                 ))
             }

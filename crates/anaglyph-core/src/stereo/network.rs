@@ -15,6 +15,12 @@ use safetensors::{Dtype, SafeTensors};
 pub const DEFAULT_FAST_WEIGHTS: &[u8] =
     include_bytes!("../../../../models/mccnn-fast-12k.safetensors");
 
+/// The lean fast network: the default's recipe with 32 maps per layer instead of 64,
+/// about a quarter of the tower's products (`models/README.md` has its command and
+/// figures).
+pub const LEAN_FAST_WEIGHTS: &[u8] =
+    include_bytes!("../../../../models/mccnn-fast32-12k.safetensors");
+
 /// Side of every convolution kernel.
 pub const KERNEL: usize = 3;
 
@@ -51,6 +57,11 @@ impl MatchingNetwork {
     /// The default shipped fast network.
     pub fn default_fast() -> Result<Self> {
         Self::from_safetensors(DEFAULT_FAST_WEIGHTS, "built-in mccnn-fast")
+    }
+
+    /// The shipped lean fast network ([`LEAN_FAST_WEIGHTS`]).
+    pub fn lean_fast() -> Result<Self> {
+        Self::from_safetensors(LEAN_FAST_WEIGHTS, "built-in mccnn-lean")
     }
 
     /// Reads a network from the bytes of a safetensors file.

@@ -64,8 +64,9 @@ def match(
     integer ``N`` means ``(0, N)``). Returns a float32 ``(H, W)`` map with **NaN where the
     disparity is unknown** (the CLI's PFM files hold +inf there); with
     ``return_info=True`` also a dict with the contrast vote and each stage's seconds.
-    ``method``: ``mccnn`` (learned, the default), ``mccnn-accurate`` (needs ``model``),
-    ``census``, ``zncc`` or ``mi``. ``contrast``: ``auto`` negates the right image when the
+    ``method``: ``mccnn`` (learned, the default), ``mccnn-lean`` (the learned cost with
+    32 maps a layer: about twice as fast, a little less accurate across channels),
+    ``mccnn-accurate`` (needs ``model``), ``census``, ``zncc`` or ``mi``. ``contrast``: ``auto`` negates the right image when the
     pair inverts contrast, ``same``, ``inverted`` or ``either`` (per pixel).
 
     >>> d = anaglyph.match(left, right, disp_range=(0, 64))   # doctest: +SKIP
