@@ -81,7 +81,9 @@ fn output_transform([m0, m1, m2, m3, m4, m5]: [f32; TILE]) -> [f32; OUT] {
 }
 
 /// `outputs[k][c] = transform(inputs[0][c], …, inputs[5][c])[k]` for every channel c:
-/// one of the 1-D transforms over whole channel vectors (contiguous, so it vectorises).
+/// one of the 1-D transforms over whole channel vectors, one channel at a time (LLVM
+/// leaves this loop of six inputs and up to six outputs scalar; [`Avx2`] is its
+/// vectorised twin).
 #[inline(always)]
 fn transform_channels<const N: usize>(
     inputs: [&[f32]; TILE],
