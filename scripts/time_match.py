@@ -16,6 +16,7 @@ bad-2 against the simulator's truth.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -47,34 +48,26 @@ def bad(truth: list[float], estimate: list[float], threshold: float) -> float:
 
 
 def main() -> None:
-    args = sys.argv[1:]
-    model = None
-    if "--model" in args:
-        at = args.index("--model")
-        if at + 1 >= len(args):
-            sys.exit("--model: expected a safetensors file after it")
-        model = Path(args[at + 1]).resolve()
-        del args[at : at + 2]
-        if not model.is_file():
-            sys.exit(f"--model {model}: no such file")
-    method = None
-    if "--method" in args:
-        at = args.index("--method")
-        if at + 1 >= len(args):
-            sys.exit("--method: expected a method name after it")
-        method = args[at + 1]
-        del args[at : at + 2]
-    runs = int(args[0]) if args else 5
-    after = Path(args[2]).resolve() if len(args) > 2 else REPO / "target/release/anaglyph"
+    parser = argparse.ArgumentParser(description="Times `anaglyph match` on the tabletop pair.")
+    parser.add_argument("runs", nargs="?", type=int, default=5)
+    parser.add_argument("before", nargs="?", type=Path)
+    parser.add_argument("after", nargs="?", type=Path, default=REPO / "target/release/anaglyph")
+    parser.add_argument("--model", type=Path, help="also time the current build with this network")
+    parser.add_argument("--method", help="also time the current build with this method")
+    args = parser.parse_args()
+    if args.model is not None and not args.model.is_file():
+        sys.exit(f"--model {args.model}: no such file")
+    after = args.after.resolve()
     modes: dict[str, tuple[Path, dict[str, str], list[str]]] = {}
-    if len(args) > 1:
-        modes["before"] = (Path(args[1]).resolve(), {}, [])
+    if args.before is not None:
+        modes["before"] = (args.before.resolve(), {}, [])
     modes["after, ANAGLYPH_NO_AMX=1"] = (after, {"ANAGLYPH_NO_AMX": "1"}, [])
     modes["after"] = (after, {}, [])
-    if model is not None:
+    if args.model is not None:
+        model = args.model.resolve()
         modes[f"after, --model {model.name}"] = (after, {}, ["--model", str(model)])
-    if method is not None:
-        modes[f"after, --method {method}"] = (after, {}, ["--method", method])
+    if args.method is not None:
+        modes[f"after, --method {args.method}"] = (after, {}, ["--method", args.method])
     for binary, _, _ in modes.values():
         if not binary.is_file():
             sys.exit(f"{binary}: no such binary (run `cargo build --release` first)")
@@ -86,7 +79,7 @@ def main() -> None:
         capture_output=True,
     )
     figures: dict[str, dict[str, list[float]]] = {m: {"wall": [], "peak MB": []} for m in modes}
-    for _ in range(runs):
+    for _ in range(args.runs):
         for k, (name, (binary, env, extra)) in enumerate(modes.items()):
             out = subprocess.run(
                 ["/usr/bin/time", "-v", str(binary), "match",

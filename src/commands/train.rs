@@ -7,6 +7,7 @@ use crate::cli::{ArchitectureChoice, TrainArgs};
 use anaglyph_cnn::dataset::Sampling;
 use anaglyph_cnn::{train_segment, Architecture, Checkpoint, Outcome, Segment, TrainSettings};
 use anaglyph_core::io::write_atomically;
+use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -225,12 +226,19 @@ fn architecture(choice: ArchitectureChoice, feature_maps: Option<u64>) -> Archit
     architecture
 }
 
-/// The `--arch` value of an architecture.
-fn architecture_name(architecture: &Architecture) -> &'static str {
+/// The `--arch` choice that names an architecture.
+fn choice_of(architecture: &Architecture) -> ArchitectureChoice {
     match architecture {
-        Architecture::Fast { .. } => "fast",
-        Architecture::Accurate { .. } => "accurate",
+        Architecture::Fast { .. } => ArchitectureChoice::Fast,
+        Architecture::Accurate { .. } => ArchitectureChoice::Accurate,
     }
+}
+
+/// An `--arch` value as the command line spells it.
+fn choice_name(choice: ArchitectureChoice) -> String {
+    choice
+        .to_possible_value()
+        .map_or_else(String::new, |v| v.get_name().to_string())
 }
 
 /// The settings the recipe options ask for, with the defaults for those not given.
@@ -297,12 +305,9 @@ fn recipe(args: &TrainArgs) -> anyhow::Result<TrainSettings> {
 
 /// `anaglyph train` with every recipe option spelled out, and the outputs.
 fn recipe_command(settings: &TrainSettings, args: &TrainArgs) -> String {
-    let default_maps = match settings.architecture {
-        Architecture::Fast { .. } => Architecture::FAST.feature_maps(),
-        Architecture::Accurate { .. } => Architecture::ACCURATE.feature_maps(),
-    };
+    let choice = choice_of(&settings.architecture);
     let maps = settings.architecture.feature_maps();
-    let width = if maps == default_maps {
+    let width = if maps == architecture(choice, None).feature_maps() {
         String::new()
     } else {
         format!(" --feature-maps {maps}")
@@ -310,7 +315,7 @@ fn recipe_command(settings: &TrainSettings, args: &TrainArgs) -> String {
     let mut command = format!(
         "anaglyph train --arch {}{width} --steps {} --seed {} --batch {} --scenes {} \
          --learning-rate {} --validate-every {} --out {}",
-        architecture_name(&settings.architecture),
+        choice_name(choice),
         settings.steps,
         settings.seed,
         settings.batch,
@@ -353,9 +358,8 @@ fn recipe_of_checkpoint(
     let given: [(&str, Option<String>, String); 12] = [
         (
             "--arch",
-            args.arch
-                .map(|a| architecture_name(&architecture(a, None)).to_string()),
-            architecture_name(&saved.architecture).to_string(),
+            args.arch.map(choice_name),
+            choice_name(choice_of(&saved.architecture)),
         ),
         (
             "--feature-maps",

@@ -17,12 +17,18 @@ const TINY: [&str; 8] = [
     "2",
 ];
 
-/// The tensors of a safetensors file (its bytes after the header) and its metadata.
-fn tensors_and_metadata(path: &Path) -> (Vec<u8>, serde_json::Value) {
+/// The tensors of a safetensors file (its bytes after the header) and its header.
+fn tensors_and_header(path: &Path) -> (Vec<u8>, serde_json::Value) {
     let bytes = std::fs::read(path).unwrap();
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
     let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    (bytes[8 + n..].to_vec(), header["__metadata__"].clone())
+    (bytes[8 + n..].to_vec(), header)
+}
+
+/// The tensors of a safetensors file and its metadata.
+fn tensors_and_metadata(path: &Path) -> (Vec<u8>, serde_json::Value) {
+    let (tensors, header) = tensors_and_header(path);
+    (tensors, header["__metadata__"].clone())
 }
 
 #[test]
@@ -196,9 +202,7 @@ fn feature_maps_make_a_narrower_network_and_a_resumed_run_keeps_its_width() {
         d,
     );
     assert!(o.status.success(), "{}", stderr(&o));
-    let bytes = std::fs::read(d.join("narrow.safetensors")).unwrap();
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let (_, header) = tensors_and_header(&d.join("narrow.safetensors"));
     for i in 0..4 {
         let inputs = if i == 0 { 1 } else { 8 };
         assert_eq!(
