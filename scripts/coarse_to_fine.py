@@ -6,17 +6,21 @@ disparity maps' bad-1 and median error against the truth (all pixels of all view
 the registered stacks' PSNR against the oracle's (pixels both see, peak 1).
 
     cargo build --release
-    python scripts/coarse_to_fine.py [RIG] [WxH] [ANAGLYPH] [MODES]
+    python scripts/coarse_to_fine.py [RIG] [WxH] [ANAGLYPH] [MODES] [--one-response]
 
 RIG: a preset (mono-3x3, hexagon-7, paper-2x4; default mono-3x3); WxH default
 1600x1200; ANAGLYPH: the binary (default target/release/anaglyph); MODES: the
-registrations to run, `off,on` (default) or one of them. Needs numpy and /usr/bin/time.
+registrations to run, `off,on` (default) or one of them. `--one-response` registers
+through the rig without its filter curves, white boards and exposures (every camera of
+the sensor's one response, as a registration-only run of a monochrome array knows it).
+Needs numpy and /usr/bin/time.
 """
 
 from __future__ import annotations
 
+import argparse
+import re
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -57,10 +61,14 @@ def timed(command: list[str]) -> tuple[float, float]:
 
 
 def main() -> None:
-    rig = sys.argv[1] if len(sys.argv) > 1 else "mono-3x3"
-    size = sys.argv[2] if len(sys.argv) > 2 else "1600x1200"
-    binary = sys.argv[3] if len(sys.argv) > 3 else "target/release/anaglyph"
-    modes = (sys.argv[4] if len(sys.argv) > 4 else "off,on").split(",")
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("rig", nargs="?", default="mono-3x3")
+    parser.add_argument("size", nargs="?", default="1600x1200")
+    parser.add_argument("binary", nargs="?", default="target/release/anaglyph")
+    parser.add_argument("modes", nargs="?", default="off,on")
+    parser.add_argument("--one-response", action="store_true")
+    args = parser.parse_args()
+    rig, size, binary, modes = args.rig, args.size, args.binary, args.modes.split(",")
     with tempfile.TemporaryDirectory() as tmp:
         sim = Path(tmp) / "sim"
         subprocess.run(
@@ -69,7 +77,13 @@ def main() -> None:
             check=True,
             stdout=subprocess.DEVNULL,
         )
-        base = [binary, "reconstruct", "--rig", str(sim / "rig.toml"), "--output", "registered"]
+        rig_file = sim / "rig.toml"
+        if args.one_response:
+            rig_file = sim / "rig-one-response.toml"
+            lines = (sim / "rig.toml").read_text().splitlines()
+            dropped = re.compile(r"^(filter|white|exposure|illuminant) =")
+            rig_file.write_text("\n".join(l for l in lines if not dropped.match(l)) + "\n")
+        base = [binary, "reconstruct", "--rig", str(rig_file), "--output", "registered"]
         runs = {
             name: ["--coarse-to-fine", mode]
             for name, mode in (("full search", "off"), ("coarse to fine", "on"))
@@ -82,7 +96,8 @@ def main() -> None:
             results[name] = (out, *timed([*base, *extra, "--out", str(out)]))
         oracle = results["true disparities"][0]
         views = sorted(p.stem for p in (oracle / "registered").glob("*.hdr"))
-        print(f"{rig} at {size}, {len(views)} views, `reconstruct --output registered`:")
+        kind = ", one response" if args.one_response else ""
+        print(f"{rig}{kind} at {size}, {len(views)} views, `reconstruct --output registered`:")
         for name, (out, wall, gb) in results.items():
             line = f"  {name:17s} {wall:6.1f} s {gb:5.2f} GB"
             if name != "true disparities":

@@ -40,6 +40,14 @@ pub const MEASUREMENT_NOISE: f64 = 0.015;
 /// r0c0 fell from 35.3 to 29.8 dB); three gave the best mean over the presets.
 pub const COMMON_SIGNALS: usize = 3;
 
+/// Shared variance, relative to the leading signal's, at or below which a signal is no
+/// signal: the cameras share nothing in it beyond rounding, as where every camera has the
+/// same one spectral response (a monochrome array without filter curves, whose covariance
+/// has rank one). Such a signal's weights are an arbitrary vector of the null space (some
+/// exactly zero), and matching by it only spent the network's time: on the 3×3 array of
+/// one response at 1600×1200 the fine level's features took twice as long.
+const UNSHARED: f64 = 1e-9;
+
 /// What multi-baseline registration compares the views by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -67,8 +75,9 @@ pub struct CommonSignal {
 }
 
 /// The `count` leading common signals of the cameras whose channel counts are
-/// `channels` (their rows of `sensing`, in order), the best first. Each later signal is
-/// uncorrelated with the earlier ones under the prior.
+/// `channels` (their rows of `sensing`, in order), the best first, fewer where the cameras
+/// share fewer ([`UNSHARED`]; never none). Each later signal is uncorrelated with the
+/// earlier ones under the prior.
 pub fn common_signals(
     sensing: &SensingMatrix,
     channels: &[usize],
@@ -128,7 +137,10 @@ pub fn common_signals(
     let symmetric = Mat::<f64>::from_fn(m, m, |i, j| 0.5 * (whitened[(i, j)] + whitened[(j, i)]));
     let top = eigen(&symmetric, "between-camera covariance")?;
     // Eigenvalues come in nondecreasing order: the leading vectors are the last.
+    let shared = top.S().column_vector();
+    let leading_shared = shared[m - 1];
     (0..count.min(m))
+        .take_while(|&rank| rank == 0 || shared[m - 1 - rank] > UNSHARED * leading_shared)
         .map(|rank| {
             let leading: Vec<f64> = (0..m).map(|i| top.U()[(i, m - 1 - rank)]).collect();
             signal_of(sensing, &inv_sqrt, &leading, &covariance, noise, &blocks)
@@ -332,6 +344,34 @@ mod tests {
             common_signals(&sensing, &[6, 0], 1).err().map(|e| e.kind()),
             Some("Shape")
         );
+    }
+
+    /// Cameras of one spectral response share one signal and nothing else: one signal
+    /// comes back, with every camera's weight of one sign and none zero. Cameras behind
+    /// different narrow bands share more, and get all the signals asked for.
+    #[test]
+    fn cameras_of_one_response_share_one_signal() {
+        let shape = SpectralShape::new(450.0, 8.0, 24).unwrap();
+        let wavelengths = shape.wavelengths();
+        let band = |peak: f64| -> Vec<f64> {
+            let row: Vec<f64> = wavelengths
+                .iter()
+                .map(|w| (-0.5 * ((w - peak) / 30.0).powi(2)).exp())
+                .collect();
+            let total: f64 = row.iter().sum();
+            row.iter().map(|v| v / total).collect()
+        };
+        let alike = SensingMatrix::from_dense(5, shape, band(550.0).repeat(5)).unwrap();
+        let signals = common_signals(&alike, &[1; 5], COMMON_SIGNALS).unwrap();
+        assert_eq!(signals.len(), 1);
+        let weights: Vec<f64> = signals[0].weights.iter().map(|w| w[0]).collect();
+        assert!(weights.iter().all(|&g| g > 0.0), "{weights:?}");
+
+        let peaks = [470.0, 510.0, 550.0, 590.0, 630.0];
+        let values: Vec<f64> = peaks.iter().flat_map(|&p| band(p)).collect();
+        let distinct = SensingMatrix::from_dense(5, shape, values).unwrap();
+        let signals = common_signals(&distinct, &[1; 5], COMMON_SIGNALS).unwrap();
+        assert_eq!(signals.len(), COMMON_SIGNALS);
     }
 
     /// The images mix each view's channels by its weights; missing values take the row's
