@@ -61,7 +61,9 @@ def timed(command: list[str]) -> tuple[float, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("rig", nargs="?", default="mono-3x3")
     parser.add_argument("size", nargs="?", default="1600x1200")
     parser.add_argument("binary", nargs="?", default="target/release/anaglyph")
