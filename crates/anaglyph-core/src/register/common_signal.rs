@@ -138,9 +138,8 @@ pub fn common_signals(
     let top = eigen(&symmetric, "between-camera covariance")?;
     // Eigenvalues come in nondecreasing order: the leading vectors are the last.
     let shared = top.S().column_vector();
-    let leading_shared = shared[m - 1];
     (0..count.min(m))
-        .take_while(|&rank| rank == 0 || shared[m - 1 - rank] > UNSHARED * leading_shared)
+        .take_while(|&rank| rank == 0 || shared[m - 1 - rank] > UNSHARED * shared[m - 1])
         .map(|rank| {
             let leading: Vec<f64> = (0..m).map(|i| top.U()[(i, m - 1 - rank)]).collect();
             signal_of(sensing, &inv_sqrt, &leading, &covariance, noise, &blocks)
