@@ -189,7 +189,7 @@ pub(super) fn dot_avx512_bf16(a: &[u16], b: &[u16]) -> f32 {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 #[inline]
-fn load_bf16(values: &[u16]) -> __m512bh {
+pub(super) fn load_bf16(values: &[u16]) -> __m512bh {
     let values = &values[..32];
     // SAFETY: `values` holds 32 u16, the 64 bytes an unaligned load reads; a vector of
     // 32 bf16 has the layout of 32 u16.
@@ -204,7 +204,7 @@ fn load_bf16(values: &[u16]) -> __m512bh {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 #[inline]
-fn load_half_bf16(values: &[u16]) -> __m512bh {
+pub(super) fn load_half_bf16(values: &[u16]) -> __m512bh {
     let values = &values[..16];
     // SAFETY: `values` holds 16 u16, the 32 bytes an unaligned load reads; a vector of
     // 32 bf16 has the layout of 32 u16.
@@ -255,7 +255,7 @@ pub(super) fn dots16_avx512_bf16(a: &[u16], b: &[u16], channels: usize) -> __m51
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn sum_lanes_of_16(v: &[__m512; 16]) -> __m512 {
+pub(super) fn sum_lanes_of_16(v: &[__m512; 16]) -> __m512 {
     // Per 128-bit lane: [v0 + v2, w0 + w2, v1 + v3, w1 + w3] of each pair (v, w).
     let pairs: [__m512; 8] = std::array::from_fn(|i| {
         let (p, q) = (v[2 * i], v[2 * i + 1]);

@@ -11,10 +11,14 @@ use crate::register::compact_features::{
     dot, dot_widened, widen, CompactFeatures, DotKernel, NeighbourProducts,
 };
 #[cfg(target_arch = "x86_64")]
-use crate::register::compact_features::{dot_avx512_bf16, dots16_avx512_bf16};
+use crate::register::compact_features::{
+    dot_avx512_bf16, dots16_avx512_bf16, load_bf16, sum_lanes_of_16,
+};
 use crate::register::ArrayGeometry;
 use crate::stereo::{CostVolume, DisparityRange};
 use rayon::prelude::*;
+#[cfg(target_arch = "x86_64")]
+use std::arch::x86_64::_mm512_dpbf16_ps;
 use std::ops::Range;
 
 /// Multi-view costs of the array's views at any point: a view's cost volume, its
@@ -734,16 +738,151 @@ unsafe fn half_step_row_avx2(
     half_step_row(job, neighbours, steps, row, dot)
 }
 
-/// [`half_step_row`] with [`dot_avx512_bf16`] (features of 16 or a multiple of 32 channels).
+/// [`half_step_row`] with AVX-512 BF16 (features of 16 or a multiple of 32 channels), each
+/// interpolated feature's dot product with the reference's reduced sixteen at a time.
+///
+/// The numerator of a view's cosine, Σᵢ kᵢ (a·fᵢ) over the bilinear taps fᵢ, is the sum
+/// of the lanes of Σᵢ kᵢ pᵢ, where pᵢ holds the partial sums of a·fᵢ that `vdpbf16ps`
+/// leaves: one vector per view and step, whose lanes are then summed with fifteen other
+/// views' and steps' ([`sum_lanes_of_16`]) instead of one reduction per tap. With 16
+/// channels a tap and the tap to its right are one load, their partial sums the low and
+/// high halves of one product. The rest is [`cost_at`]'s, in its order; the costs equal
+/// the portable build's to rounding (the test of every build).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bf16")]
 fn half_step_row_avx512_bf16(
     job: &RowJob<'_>,
     neighbours: &[NeighbourProducts],
-    steps: (&[f32], &[[bool; 4]]),
+    (disparity, needed): (&[f32], &[[bool; 4]]),
     row: &mut [[f32; 4]],
 ) {
-    half_step_row(job, neighbours, steps, row, |a, b| dot_avx512_bf16(a, b))
+    use std::arch::x86_64::{
+        __m256i, __m512, __m512bh, _mm256_loadu_si256, _mm512_broadcast_i64x4, _mm512_fmadd_ps,
+        _mm512_mask_blend_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_storeu_ps,
+    };
+    let fr = job.reference;
+    let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
+    debug_assert!(c == 16 || c.is_multiple_of(32));
+    // Taps waiting for their lanes to be summed: the weighted partial sums, and the
+    // step, view and bilinear cell each belongs to.
+    let mut weighted = [_mm512_setzero_ps(); 16];
+    let mut taps = [(0usize, 0usize, 0usize, 0usize, [0f32; 4]); 16];
+    let mut waiting = 0usize;
+    // The costs of the waiting taps added to their steps' half-array sums, in order.
+    let finish = |weighted: &mut [__m512; 16],
+                  taps: &[(usize, usize, usize, usize, [f32; 4])],
+                  sums: &mut [[f32; HALVES]; 4],
+                  counts: &mut [[u16; HALVES]; 4]| {
+        let mut numerators = [0f32; 16];
+        // SAFETY: `numerators` holds the 16 f32 the store writes.
+        unsafe { _mm512_storeu_ps(numerators.as_mut_ptr(), sum_lanes_of_16(weighted)) };
+        for (&(step, other, x0, y0, k), numerator) in taps.iter().zip(numerators) {
+            let (v, _, halves) = job.others[other];
+            let norm2 = neighbours[v].interpolated_norm2(x0, y0, k);
+            let similarity = if norm2 > 0.0 {
+                numerator / norm2.sqrt()
+            } else {
+                0.0
+            };
+            let cost = (0.5 - 0.5 * similarity).clamp(0.0, 1.0);
+            for j in 0..HALVES {
+                if halves[j] {
+                    sums[step][j] += cost;
+                    counts[step][j] += 1;
+                }
+            }
+        }
+        weighted.fill(_mm512_setzero_ps());
+    };
+    for (x, ((costs, &d), needs)) in row.iter_mut().zip(disparity).zip(needed).enumerate() {
+        if !d.is_finite() {
+            continue;
+        }
+        let a = &fr.data[(y * w + x) * c..][..c];
+        // With 16 channels: the reference's feature in both halves of a vector.
+        let a_twice: __m512bh = if c == 16 {
+            // SAFETY: `a` holds 16 u16, the 32 bytes the unaligned load reads; a vector
+            // of 32 bf16 has the layout of 32 u16.
+            unsafe {
+                let low = _mm256_loadu_si256(a.as_ptr().cast::<__m256i>());
+                std::mem::transmute::<std::arch::x86_64::__m512i, __m512bh>(_mm512_broadcast_i64x4(
+                    low,
+                ))
+            }
+        } else {
+            // SAFETY: a vector of 32 bf16 is as many bits as one of 16 f32.
+            unsafe { std::mem::transmute::<__m512, __m512bh>(_mm512_setzero_ps()) }
+        };
+        let mut sums = [[0f32; HALVES]; 4];
+        let mut counts = [[0u16; HALVES]; 4];
+        for (step, (&offset, &need)) in HALF_STEPS.iter().zip(needs).enumerate() {
+            if !need {
+                continue;
+            }
+            let dd = d as f64 + offset;
+            for (other, &(v, (sx, sy), _)) in job.others.iter().enumerate() {
+                let (px, py) = (x as f64 + sx * dd, y as f64 + sy * dd);
+                if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+                    continue;
+                }
+                let (x0, y0) = ((px as usize).min(w - 2), (py as usize).min(h - 2));
+                let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+                let k = [
+                    (1.0 - fx) * (1.0 - fy),
+                    fx * (1.0 - fy),
+                    (1.0 - fx) * fy,
+                    fx * fy,
+                ];
+                let fv = &job.features[v].data;
+                let sum = &mut weighted[waiting];
+                if c == 16 {
+                    // Taps (x0, y) and (x0 + 1, y) are 32 consecutive bf16.
+                    for (row_y, (k_left, k_right)) in [(y0, (k[0], k[1])), (y0 + 1, (k[2], k[3]))] {
+                        if k_left > 0.0 || k_right > 0.0 {
+                            let pair = load_bf16(&fv[(row_y * w + x0) * c..][..32]);
+                            let products = _mm512_dpbf16_ps(_mm512_setzero_ps(), a_twice, pair);
+                            let weights = _mm512_mask_blend_ps(
+                                0xFF00,
+                                _mm512_set1_ps(k_left),
+                                _mm512_set1_ps(k_right),
+                            );
+                            *sum = _mm512_fmadd_ps(products, weights, *sum);
+                        }
+                    }
+                } else {
+                    let cells = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
+                    for (&ki, &(xi, yi)) in k.iter().zip(&cells) {
+                        if ki > 0.0 {
+                            let b = &fv[(yi * w + xi) * c..][..c];
+                            let mut products = _mm512_setzero_ps();
+                            for (p, q) in a.chunks_exact(32).zip(b.chunks_exact(32)) {
+                                products = _mm512_dpbf16_ps(products, load_bf16(p), load_bf16(q));
+                            }
+                            *sum = _mm512_fmadd_ps(products, _mm512_set1_ps(ki), *sum);
+                        }
+                    }
+                }
+                taps[waiting] = (step, other, x0, y0, k);
+                waiting += 1;
+                if waiting == 16 {
+                    finish(&mut weighted, &taps, &mut sums, &mut counts);
+                    waiting = 0;
+                }
+            }
+        }
+        if waiting > 0 {
+            finish(&mut weighted, &taps[..waiting], &mut sums, &mut counts);
+            waiting = 0;
+        }
+        for (step, (slot, &need)) in costs.iter_mut().zip(needs).enumerate() {
+            if need {
+                *slot = (0..HALVES)
+                    .filter(|&j| counts[step][j] > 0)
+                    .map(|j| sums[step][j] / counts[step][j] as f32)
+                    .fold(f32::NAN, f32::min);
+            }
+        }
+    }
 }
 
 /// Per pixel, its costs in `raw` at its whole disparity − 2 … + 2 (NaN outside the
@@ -774,6 +913,15 @@ pub(super) fn whole_steps(raw: &CostVolume, disparity: &[f32]) -> Vec<[f32; 5]> 
 /// A finer grid shrinks the fit's bias towards its samples: on the tabletop at 640×480 the
 /// bias at a true offset of 0.3 px fell from −0.07 to −0.02 px and r0c0 gained 0.3 dB
 /// (the half steps cost 5 s for 8 views).
+///
+/// The window of pixel p sums, over the pixels q of its window whose whole disparity is
+/// within one of p's, q's five costs around p's disparity. Summing each window pixel by
+/// pixel costs (2r + 1)² per pixel; here the view goes in tiles of [`FIT_TILE`], and in a
+/// tile the pixels of one disparity L share a summed-area table of what every pixel
+/// around them holds for L, so a window is four lookups. The sums are exact, in fixed
+/// point ([`FIT_SCALE`]), so a table's differences cancel exactly and the steps a window
+/// does not read never change a sum ([`half_step_subpixel_by_pixel`] is the direct sum,
+/// the twin the tests compare with).
 pub(super) fn half_step_subpixel(
     (w, h): (usize, usize),
     whole: &[[f32; 5]],
@@ -781,48 +929,211 @@ pub(super) fn half_step_subpixel(
     disparity: &[f32],
     radius: usize,
 ) -> Vec<f32> {
+    let mut out = disparity.to_vec();
+    if w == 0 || h == 0 {
+        return out;
+    }
+    let steps = Steps {
+        width: w,
+        height: h,
+        whole,
+        half,
+        disparity,
+    };
+    out.par_chunks_mut(FIT_TILE * w).enumerate().for_each_init(
+        FitScratch::default,
+        |scratch, (band, out)| {
+            let rows = band * FIT_TILE..(band * FIT_TILE + FIT_TILE).min(h);
+            for x0 in (0..w).step_by(FIT_TILE) {
+                let columns = x0..(x0 + FIT_TILE).min(w);
+                steps.fit_tile((columns, rows.clone()), radius, scratch, out);
+            }
+        },
+    );
+    out
+}
+
+/// Side of the square tiles of [`half_step_subpixel`]: a tile's tables cover it and the
+/// window's reach around it.
+const FIT_TILE: usize = 64;
+
+/// Fixed-point scale of [`half_step_subpixel`]'s sums: a cost (in [0, 1]) to 2⁻³². A
+/// window of 11 × 11 costs sums exactly in i64, and a tile's table stays below 2⁴⁶.
+const FIT_SCALE: f64 = 4_294_967_296.0;
+
+/// Largest magnitude a cost may have in the fixed-point sums (costs are in [0, 1]; a
+/// larger one is clipped here rather than overflow a table).
+const FIT_COST_LIMIT: f64 = 1024.0;
+
+/// The costs [`half_step_subpixel`] reads: per pixel its whole disparity and its costs at
+/// whole and half steps around it.
+struct Steps<'a> {
+    width: usize,
+    height: usize,
+    whole: &'a [[f32; 5]],
+    half: &'a [[f32; 4]],
+    disparity: &'a [f32],
+}
+
+/// Per thread of [`half_step_subpixel`]: a tile's fitted pixels with their disparities'
+/// bits (to group them), and one disparity's summed-area table.
+#[derive(Default)]
+struct FitScratch {
+    pixels: Vec<(u32, u32)>,
+    table: Vec<[i64; 5]>,
+}
+
+impl Steps<'_> {
+    /// Whether pixel i's disparity ± 1 lie in its volume's range (else it keeps its whole
+    /// disparity).
+    fn fits(&self, i: usize) -> bool {
+        self.whole[i][1].is_finite() && self.whole[i][3].is_finite()
+    }
+
+    /// Pixel q's five costs around the whole disparity `d` (d − 1, d − ½, d, d + ½, d + 1),
+    /// if d is within one of q's and all five are known.
+    #[inline(always)]
+    fn around(&self, q: usize, d: f32) -> Option<[f32; 5]> {
+        let dq = self.disparity[q];
+        if !((dq - d).abs() <= 1.0) {
+            return None;
+        }
+        // q's steps sit at dq − 2 … dq + 2 (whole) and dq − 1.5 … dq + 1.5 (half):
+        // d − 1 is whole slot d − dq + 1, d − ½ half slot d − dq + 1.
+        let slot = ((d - dq) as isize + 1) as usize;
+        let (steps, half) = (&self.whole[q][slot..][..3], &self.half[q]);
+        let values = [steps[0], half[slot], steps[1], half[slot + 1], steps[2]];
+        values.iter().all(|v| v.is_finite()).then_some(values)
+    }
+
+    /// Fits the pixels of the tile `columns` × `rows`, writing them to `out` (the rows of
+    /// the tile's band, from its first row).
+    fn fit_tile(
+        &self,
+        (columns, rows): (Range<usize>, Range<usize>),
+        radius: usize,
+        scratch: &mut FitScratch,
+        out: &mut [f32],
+    ) {
+        let (w, h) = (self.width, self.height);
+        scratch.pixels.clear();
+        for y in rows.clone() {
+            for x in columns.clone() {
+                let i = y * w + x;
+                if self.fits(i) {
+                    scratch.pixels.push((self.disparity[i].to_bits(), i as u32));
+                }
+            }
+        }
+        scratch.pixels.sort_unstable();
+        let pixels = std::mem::take(&mut scratch.pixels);
+        for group in pixels.chunk_by(|a, b| a.0 == b.0) {
+            let d = self.disparity[group[0].1 as usize];
+            // The group's windows, clipped to the view: the table's extent.
+            let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (w, 0, h, 0);
+            for &(_, i) in group {
+                let (x, y) = (i as usize % w, i as usize / w);
+                (x_lo, x_hi) = (x_lo.min(x), x_hi.max(x));
+                (y_lo, y_hi) = (y_lo.min(y), y_hi.max(y));
+            }
+            let xs = x_lo.saturating_sub(radius)..(x_hi + radius + 1).min(w);
+            let ys = y_lo.saturating_sub(radius)..(y_hi + radius + 1).min(h);
+            let tw = xs.len() + 1;
+            // table[(y + 1) · tw + x + 1]: the sums over the extent's rows up to y and
+            // columns up to x; row and column 0 are zero.
+            let table = &mut scratch.table;
+            table.clear();
+            table.resize(tw * (ys.len() + 1), [0; 5]);
+            for (ty, y) in ys.clone().enumerate() {
+                let mut running = [0i64; 5];
+                for (tx, x) in xs.clone().enumerate() {
+                    if let Some(values) = self.around(y * w + x, d) {
+                        for (sum, v) in running.iter_mut().zip(values) {
+                            *sum += fixed_point(v);
+                        }
+                    }
+                    let (above, at) = (ty * tw + tx + 1, (ty + 1) * tw + tx + 1);
+                    table[at] = std::array::from_fn(|j| table[above][j] + running[j]);
+                }
+            }
+            for &(_, i) in group {
+                let (x, y) = (i as usize % w, i as usize / w);
+                // The window in table coordinates: columns l..r, rows t..b.
+                let (l, r) = (
+                    x.saturating_sub(radius) - xs.start,
+                    (x + radius + 1).min(w) - xs.start,
+                );
+                let (t, b) = (
+                    y.saturating_sub(radius) - ys.start,
+                    (y + radius + 1).min(h) - ys.start,
+                );
+                let c: [f32; 5] = std::array::from_fn(|j| {
+                    let sum = table[b * tw + r][j] - table[t * tw + r][j] - table[b * tw + l][j]
+                        + table[t * tw + l][j];
+                    (sum as f64 / FIT_SCALE) as f32
+                });
+                out[i as usize - rows.start * w] = equiangular_fit(d, c);
+            }
+        }
+        scratch.pixels = pixels;
+    }
+}
+
+/// A cost in [`FIT_SCALE`]'s fixed point.
+#[inline(always)]
+fn fixed_point(cost: f32) -> i64 {
+    ((cost as f64).clamp(-FIT_COST_LIMIT, FIT_COST_LIMIT) * FIT_SCALE).round() as i64
+}
+
+/// The fitted disparity of a pixel of whole disparity `d` whose window sums at d − 1,
+/// d − ½, d, d + ½, d + 1 are `c`: an equiangular fit around the least of the three
+/// central ones (d where no minimum lies inside).
+fn equiangular_fit(d: f32, c: [f32; 5]) -> f32 {
+    let m = (1..4).fold(1, |best, j| if c[j] < c[best] { j } else { best });
+    let (minus, centre, plus) = (c[m - 1], c[m], c[m + 1]);
+    let rise = minus.max(plus) - centre;
+    if !(centre <= minus && centre <= plus && rise > 0.0) {
+        return d;
+    }
+    let offset = 0.5 * (m as f32 - 2.0) + 0.5 * ((minus - plus) / (2.0 * rise));
+    d + offset.clamp(-0.5, 0.5)
+}
+
+/// [`half_step_subpixel`] summing each window pixel by pixel, in f32: the twin the tests
+/// compare the tiled sums with.
+#[cfg(test)]
+fn half_step_subpixel_by_pixel(
+    (w, h): (usize, usize),
+    whole: &[[f32; 5]],
+    half: &[[f32; 4]],
+    disparity: &[f32],
+    radius: usize,
+) -> Vec<f32> {
+    let steps = Steps {
+        width: w,
+        height: h,
+        whole,
+        half,
+        disparity,
+    };
     (0..w * h)
-        .into_par_iter()
         .map(|i| {
             let d = disparity[i];
-            if !(whole[i][1].is_finite() && whole[i][3].is_finite()) {
+            if !steps.fits(i) {
                 return d;
             }
             let (x, y) = (i % w, i / w);
             let mut c = [0f32; 5];
             for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
                 for xx in x.saturating_sub(radius)..(x + radius + 1).min(w) {
-                    let q = yy * w + xx;
-                    let dq = disparity[q];
-                    if !((dq - d).abs() <= 1.0) {
-                        continue;
-                    }
-                    // q's steps sit at dq − 2 … dq + 2 (whole) and dq − 1.5 … dq + 1.5
-                    // (half): d − 1 is whole slot d − dq + 1, d − ½ half slot d − dq + 1.
-                    let slot = ((d - dq) as isize + 1) as usize;
-                    let steps = &whole[q][slot..][..3];
-                    let values = [
-                        steps[0],
-                        half[q][slot],
-                        steps[1],
-                        half[q][slot + 1],
-                        steps[2],
-                    ];
-                    if values.iter().all(|v| v.is_finite()) {
+                    if let Some(values) = steps.around(yy * w + xx, d) {
                         for (sum, v) in c.iter_mut().zip(values) {
                             *sum += v;
                         }
                     }
                 }
             }
-            let m = (1..4).fold(1, |best, j| if c[j] < c[best] { j } else { best });
-            let (minus, centre, plus) = (c[m - 1], c[m], c[m + 1]);
-            let rise = minus.max(plus) - centre;
-            if !(centre <= minus && centre <= plus && rise > 0.0) {
-                return d;
-            }
-            let offset = 0.5 * (m as f32 - 2.0) + 0.5 * ((minus - plus) / (2.0 * rise));
-            d + offset.clamp(-0.5, 0.5)
+            equiangular_fit(d, c)
         })
         .collect()
 }
@@ -995,6 +1306,61 @@ mod tests {
         let some = fit(&needed);
         for (i, (a, b)) in every.iter().zip(&some).enumerate() {
             assert_eq!(a.to_bits(), b.to_bits(), "pixel {i}: {a} against {b}");
+        }
+    }
+
+    /// The tiled fit equals the fit summing each window pixel by pixel, bit for bit, on
+    /// costs whose sums are exact in f32 (multiples of 2⁻¹⁰): maps of plateaus, steps of
+    /// one and two, ramps across tiles and holes, with unknown steps, over a view of
+    /// several tiles and a remainder.
+    #[test]
+    fn the_tiled_fit_is_the_fit_pixel_by_pixel() {
+        let (w, h) = (2 * FIT_TILE + 23, FIT_TILE + 17);
+        let mut state = 99u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            (state >> 33) as u32
+        };
+        let mut cost = || match next() % 50 {
+            0 => f32::NAN,
+            k => ((k * 37 + next() % 400) % 1025) as f32 / 1024.0,
+        };
+        let whole: Vec<[f32; 5]> = (0..w * h)
+            .map(|_| std::array::from_fn(|_| cost()))
+            .collect();
+        let half: Vec<[f32; 4]> = (0..w * h)
+            .map(|_| std::array::from_fn(|_| cost()))
+            .collect();
+        let disparity: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                match (x, y) {
+                    _ if (3 * x + y) % 17 == 0 => f32::NAN,
+                    (_, 0..=20) => ((x / 9) % 5) as f32 - 2.0,
+                    (0..=70, _) => 4.0 + ((x + y) / 23) as f32,
+                    _ => 6.0 + ((x / 31) % 2) as f32 * 2.0,
+                }
+            })
+            .collect();
+        for radius in [0, 3, 5] {
+            let tiled = half_step_subpixel((w, h), &whole, &half, &disparity, radius);
+            let direct = half_step_subpixel_by_pixel((w, h), &whole, &half, &disparity, radius);
+            let fitted = tiled
+                .iter()
+                .zip(&disparity)
+                .filter(|(t, d)| t.is_finite() && t.fract() != 0.0 && d.fract() == 0.0)
+                .count();
+            assert!(
+                fitted > w * h / 4,
+                "radius {radius}: only {fitted} pixels moved"
+            );
+            for (i, (a, b)) in tiled.iter().zip(&direct).enumerate() {
+                assert_eq!(
+                    a.to_bits(),
+                    b.to_bits(),
+                    "radius {radius}, pixel {i}: {a} against {b}"
+                );
+            }
         }
     }
 
