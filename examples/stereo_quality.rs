@@ -20,6 +20,9 @@
 //! `match`'s default contrast vote (`Contrast::Auto`; `ANAGLYPH_CONTRAST=same` turns it
 //! off, `ANAGLYPH_CONTRAST=either` takes either sign per pixel), which also prints how many
 //! pairs of each group it took for inverted (`ANAGLYPH_VOTES=1` prints every pair's vote).
+//! `ANAGLYPH_WRITE_PAIRS=DIR` also writes every group's pairs to DIR (`GROUP-K-left.pfm`,
+//! `-right.pfm`, `-truth.pfm` with NaN where the truth is unknown, and `index.tsv`) for
+//! other matchers: `scripts/sgbm_baseline.py DIR` scores OpenCV's SGBM on them.
 
 use anaglyph_cnn::dataset::{
     rig_pair, simulated_pair_with, PairKind, PairSettings, RigPair, StereoPair,
@@ -240,6 +243,9 @@ fn main() -> anyhow::Result<()> {
         ("inverted", inverted.iter().collect()),
         ("half inverted", half_inverted.iter().collect()),
     ];
+    if let Some(dir) = std::env::var_os("ANAGLYPH_WRITE_PAIRS") {
+        write_pairs(std::path::Path::new(&dir), &groups, max_disp)?;
+    }
     println!(
         "| cost | chain | pairs | bad-2.0 % | avg error px | density % | s / Mpx / 100 disp | voted inverted |"
     );
@@ -266,5 +272,33 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// Writes every group's pairs to `dir` as PFM (left, right and the truth, NaN where it is
+/// unknown), with `index.tsv`: group, file stem, the pair's label and the disparities
+/// searched (`0..max_disp`; the scores count pixels whose truth is below `max_disp − 1`).
+fn write_pairs(
+    dir: &std::path::Path,
+    groups: &[(&str, Vec<&StereoPair>)],
+    max_disp: usize,
+) -> anyhow::Result<()> {
+    use anaglyph_core::image::Image;
+    use anaglyph_core::io::write_pfm;
+    std::fs::create_dir_all(dir)?;
+    let mut index = String::from("group\tstem\tlabel\tmax_disp\n");
+    for (name, subset) in groups {
+        for (k, pair) in subset.iter().enumerate() {
+            let stem = format!("{}-{k:02}", name.replace(' ', "-"));
+            let (w, h) = (pair.left.width, pair.left.height);
+            write_pfm(&dir.join(format!("{stem}-left.pfm")), &pair.left)?;
+            write_pfm(&dir.join(format!("{stem}-right.pfm")), &pair.right)?;
+            let truth = Image::new(w, h, 1, pair.disparity.clone())?;
+            write_pfm(&dir.join(format!("{stem}-truth.pfm")), &truth)?;
+            index.push_str(&format!("{name}\t{stem}\t{}\t{max_disp}\n", pair.label));
+        }
+    }
+    std::fs::write(dir.join("index.tsv"), index)?;
+    println!("wrote the pairs to {}", dir.display());
     Ok(())
 }
