@@ -12,6 +12,10 @@ corner. OpenCV is a benchmark dependency only:
 
     pip install opencv-python-headless
     python scripts/board_detection.py [--sizes 800x600,1600x1200] [--cases clean,cut,...]
+        [--pattern 9x6]
+
+`--pattern 11x8` renders the real-array issue's board instead (12 x 9 squares of 80 mm),
+with the cut, the monitor and the clutter placed against its larger border the same way.
 """
 
 from __future__ import annotations
@@ -29,13 +33,15 @@ import anaglyph
 
 COLS, ROWS, SQUARE_MM, BOARD_Z_MM = 9, 6, 80.0, 1600.0
 WALL = '[[object]]\nrectangle = {{ centre_mm = [0, 0, 2600], size_mm = [12000, 12000] }}\nmaterial = {{ srgb = [{wall}, {wall}, {wall}] }}\n'
-BOARD = ('[[object]]\nrectangle = {{ centre_mm = [{x}, {y}, {z}], size_mm = [800, 560], rotation_deg = [{rx}, {ry}, 0] }}\n'
+BOARD = ('[[object]]\nrectangle = {{ centre_mm = [{x}, {y}, {z}], size_mm = [{width}, {height}], rotation_deg = [{rx}, {ry}, 0] }}\n'
          'material = {{ pattern = "checker", period_mm = 80, srgb = [{dark}, {dark}, {dark}], srgb2 = [{light}, {light}, {light}] }}\n')
 # A white border around the board (a printed target's margin), just behind it.
-BORDER = ('[[object]]\nrectangle = {{ centre_mm = [{x}, {y}, {z}], size_mm = [960, 720], rotation_deg = [{rx}, {ry}, 0] }}\n'
+BORDER = ('[[object]]\nrectangle = {{ centre_mm = [{x}, {y}, {z}], size_mm = [{border_width}, {border_height}], rotation_deg = [{rx}, {ry}, 0] }}\n'
           'material = {{ srgb = [{light}, {light}, {light}] }}\n')
-# A monitor: a dark slab whose lower edge touches the board's border.
-MONITOR = '[[object]]\nrectangle = { centre_mm = [0, -660, 1590], size_mm = [1400, 600] }\nmaterial = { srgb = [0.02, 0.02, 0.02] }\n'
+# A monitor: a dark slab 600 mm tall whose lower edge touches the board's border.
+MONITOR = '[[object]]\nrectangle = {{ centre_mm = [0, {y}, 1590], size_mm = [1400, 600] }}\nmaterial = {{ srgb = [0.02, 0.02, 0.02] }}\n'
+# The white margin around the board's squares, on every side.
+MARGIN_MM = 80.0
 # Clutter: textured patches (CC0 textures) beside the board.
 CLUTTER = ''.join(
     f'[[object]]\nrectangle = {{ centre_mm = [{x}, {y}, 1620], size_mm = [{w}, {h}] }}\nmaterial = {{ texture = "{t}", scale_mm = 300 }}\n'
@@ -56,20 +62,25 @@ def rotation(degrees: tuple[float, float, float]) -> np.ndarray:
 
 def case(name: str) -> tuple[str, dict]:
     """The scene of a case and its board's placement."""
-    board = dict(x=0.0, y=0.0, z=BOARD_Z_MM, rx=0.0, ry=0.0, dark=0.05, light=0.9)
+    width, height = (COLS + 1) * SQUARE_MM, (ROWS + 1) * SQUARE_MM
+    board = dict(x=0.0, y=0.0, z=BOARD_Z_MM, rx=0.0, ry=0.0, dark=0.05, light=0.9,
+                 width=width, height=height)
+    monitor = MONITOR.format(y=-(height / 2 + MARGIN_MM + 300.0))
+    # Slid left so that the board's outer squares reach 30 mm past the left edge of the
+    # frames of the left and middle columns of cameras (their edges at -680 and -640 mm
+    # at the board's distance), every inner corner in; cameras that lose inner corners
+    # are not counted. For the 9x6 board, -310 mm.
+    cut_x = -710.0 + width / 2
     extra, wall = "", 0.5
     if name == "cut":
-        # Slid left so that the left column of cameras sees its outer squares cut by the
-        # frame's left edge, every inner corner in (cameras that lose inner corners are
-        # not counted).
-        board["x"] = -310.0
+        board["x"] = cut_x
     elif name == "office":
         # The real office capture's surroundings together: cut by the frame's left edge,
         # a monitor's dark edge above the board, clutter beside it.
-        board["x"] = -310.0
-        extra = MONITOR + CLUTTER
+        board["x"] = cut_x
+        extra = monitor + CLUTTER
     elif name == "monitor":
-        extra = MONITOR
+        extra = monitor
     elif name == "clutter":
         extra = CLUTTER
     elif name == "low-contrast":
@@ -84,7 +95,8 @@ def case(name: str) -> tuple[str, dict]:
         board["ry"] = 45.0
     elif name not in ("clean", "defocus"):
         raise SystemExit(f"unknown case {name}")
-    border = dict(board, z=board["z"] + 1.0)
+    border = dict(board, z=board["z"] + 1.0, border_width=width + 2 * MARGIN_MM,
+                  border_height=height + 2 * MARGIN_MM)
     scene = ('name = "board"\n' + WALL.format(wall=wall) + BORDER.format(**border)
              + BOARD.format(**board) + extra)
     return scene, board
@@ -96,7 +108,7 @@ def true_corners(board: dict, camera: np.ndarray, focal: float, size: tuple[int,
     r = rotation((board["rx"], board["ry"], 0.0))
     axis_u, axis_v = r[:, 0], r[:, 1]
     centre = np.array([board["x"], board["y"], board["z"]])
-    half_u, half_v = 400.0, 280.0
+    half_u, half_v = (COLS + 1) * SQUARE_MM / 2, (ROWS + 1) * SQUARE_MM / 2
     points = np.array([
         centre + axis_u * (i * SQUARE_MM - half_u) + axis_v * (j * SQUARE_MM - half_v)
         for j in range(1, ROWS + 1) for i in range(1, COLS + 1)
@@ -133,7 +145,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="800x600,1600x1200")
     parser.add_argument("--cases", default="clean,cut,monitor,clutter,office,low-contrast,saturated,tilt-30,tilt-45,defocus")
+    parser.add_argument("--pattern", default="9x6", help="inner corners, COLSxROWS")
     args = parser.parse_args()
+    global COLS, ROWS
+    COLS, ROWS = (int(v) for v in args.pattern.split("x"))
     print("| case | size | anaglyph found | its median / largest error (px) | OpenCV SB found | its median / largest error (px) | seconds per capture (anaglyph / OpenCV) |")
     print("|---|---|---|---|---|---|---|")
     totals = {"anaglyph": [0, 0], "opencv": [0, 0]}
