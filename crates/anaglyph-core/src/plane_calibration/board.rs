@@ -112,6 +112,10 @@ pub fn find_board(
             .collect(),
         None => labelled,
     };
+    // A labelled corner its neighbours do not put where it is (a saddle of the noise or
+    // of the scene the detector took into the grid) is left to the completion, which
+    // places and confirms it as any missing one.
+    let labelled = where_neighbours_put_them(&labelled);
     in_board_order(&labelled, pattern)
         .or_else(|| {
             let completed = complete_grid(&labelled, pattern, saddles.as_mut()?)?;
@@ -200,6 +204,60 @@ fn complete_grid(
             .map(|((u, v), p)| (u - lo.0, v - lo.1, p))
             .collect()
     })
+}
+
+/// The labelled corners that lie within [`COMPLETION_OFFSET`] of a square of where the
+/// homography of the other labelled corners around them ([`NEIGHBOURHOOD`]) puts them.
+/// The corner farthest out is left out first and the rest judged again without it (a
+/// stray corner also pulls its neighbours' predictions); a corner with fewer than six
+/// such neighbours is kept as it is.
+fn where_neighbours_put_them(labelled: &[Labelled]) -> Vec<Labelled> {
+    let mut kept = labelled.to_vec();
+    loop {
+        // Per corner, its distance from the prediction in units of the allowed offset.
+        let worst = kept
+            .iter()
+            .enumerate()
+            .filter_map(|(i, &(u, v, p))| {
+                let others = kept.iter().filter(|&&(ku, kv, _)| (ku, kv) != (u, v));
+                let (predicted, square) =
+                    local_prediction(others.map(|&(ku, kv, q)| ((ku, kv), q)), (u, v))?;
+                let off = (p[0] - predicted[0]).hypot(p[1] - predicted[1]);
+                Some((i, off / (COMPLETION_OFFSET * square)))
+            })
+            .filter(|(_, ratio)| ratio.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match worst {
+            Some((i, ratio)) if ratio > 1.0 => {
+                kept.remove(i);
+            }
+            _ => return kept,
+        }
+    }
+}
+
+/// Where the homography of the `known` corners within [`NEIGHBOURHOOD`] cells of grid
+/// cell (u, v) puts it, and the local square size there (the distance to the
+/// predictions of its neighbouring cells); None with fewer than six such corners.
+fn local_prediction(
+    known: impl Iterator<Item = ((i32, i32), [f64; 2])>,
+    (u, v): (i32, i32),
+) -> Option<([f64; 2], f64)> {
+    let (grid, image): (Vec<[f64; 2]>, Vec<[f64; 2]>) = known
+        .filter(|((ku, kv), _)| (ku - u).abs().max((kv - v).abs()) <= NEIGHBOURHOOD)
+        .map(|((ku, kv), p)| ([f64::from(ku), f64::from(kv)], p))
+        .unzip();
+    if grid.len() < 6 {
+        return None;
+    }
+    let map = Homography::fit(&grid, &image).ok()?;
+    let at = |u: i32, v: i32| map.apply(f64::from(u), f64::from(v)).map(|(x, y)| [x, y]);
+    let predicted = at(u, v)?;
+    let square = [at(u + 1, v)?, at(u, v + 1)?]
+        .iter()
+        .map(|n| (n[0] - predicted[0]).hypot(n[1] - predicted[1]))
+        .fold(f64::INFINITY, f64::min);
+    Some((predicted, square))
 }
 
 /// The smallest and largest labels of `cells`.
@@ -313,29 +371,13 @@ impl<'a> Saddles<'a> {
         known: &HashMap<(i32, i32), [f64; 2]>,
         (u, v): (i32, i32),
     ) -> Option<[f64; 2]> {
-        let near: Vec<([f64; 2], [f64; 2])> = known
-            .iter()
-            .filter(|((ku, kv), _)| (ku - u).abs().max((kv - v).abs()) <= NEIGHBOURHOOD)
-            .map(|(&(ku, kv), &p)| ([f64::from(ku), f64::from(kv)], p))
-            .collect();
-        if near.len() < 6 {
-            return None;
-        }
-        let (grid, image): (Vec<[f64; 2]>, Vec<[f64; 2]>) = near.into_iter().unzip();
-        let map = Homography::fit(&grid, &image).ok()?;
-        let at = |u: i32, v: i32| map.apply(f64::from(u), f64::from(v)).map(|(x, y)| [x, y]);
-        let predicted = at(u, v)?;
+        let (predicted, square) = local_prediction(known.iter().map(|(&c, &p)| (c, p)), (u, v))?;
         let (width, height) = self.size;
         let inside = (0.0..=(width - 1) as f64).contains(&predicted[0])
             && (0.0..=(height - 1) as f64).contains(&predicted[1]);
         if !inside {
             return None;
         }
-        // The local square size: the distance to the neighbouring predictions.
-        let square = [at(u + 1, v)?, at(u, v + 1)?]
-            .iter()
-            .map(|n| (n[0] - predicted[0]).hypot(n[1] - predicted[1]))
-            .fold(f64::INFINITY, f64::min);
         let (refined, strength) = self.saddle(predicted)?;
         let moved = (refined[0] - predicted[0]).hypot(refined[1] - predicted[1]);
         (strength >= self.strong
@@ -558,6 +600,35 @@ mod tests {
                     "{square}"
                 );
             }
+        }
+    }
+
+    /// A labelled corner a third of a square from where its neighbours put it (the
+    /// detector's stray label) is left out, and only it: every corner of a board seen in
+    /// perspective, its edges and corners included, stays.
+    #[test]
+    fn a_corner_its_neighbours_do_not_put_there_is_left_out() {
+        // 11 × 8 corners of 40-px squares, in perspective (the far side 30 % smaller).
+        let at = |u: i32, v: i32| {
+            let (u, v) = (f64::from(u), f64::from(v));
+            let depth = 1.0 + 0.03 * u + 0.01 * v;
+            [100.0 + 40.0 * u / depth, 80.0 + 40.0 * v / depth]
+        };
+        let board: Vec<Labelled> = (0..8)
+            .flat_map(|v| (0..11).map(move |u| (u, v, at(u, v))))
+            .collect();
+        assert_eq!(where_neighbours_put_them(&board), board);
+        for stray in [(5, 3), (0, 0), (10, 7), (0, 4)] {
+            let moved: Vec<Labelled> = board
+                .iter()
+                .map(|&(u, v, p)| match (u, v) == stray {
+                    true => (u, v, [p[0] + 9.0, p[1] - 9.0]),
+                    false => (u, v, p),
+                })
+                .collect();
+            let kept = where_neighbours_put_them(&moved);
+            assert_eq!(kept.len(), board.len() - 1, "{stray:?}");
+            assert!(kept.iter().all(|&(u, v, _)| (u, v) != stray), "{stray:?}");
         }
     }
 
