@@ -141,14 +141,25 @@ def ours(grey: np.ndarray) -> np.ndarray | None:
         return None
 
 
+def pattern(text: str) -> tuple[int, int]:
+    """A board's inner corners, COLSxROWS, each at least 2."""
+    try:
+        cols, rows = (int(v) for v in text.split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected COLSxROWS, for example 11x8") from None
+    if cols < 2 or rows < 2:
+        raise argparse.ArgumentTypeError(f"{text!r}: a board has at least 2x2 inner corners")
+    return cols, rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="800x600,1600x1200")
     parser.add_argument("--cases", default="clean,cut,monitor,clutter,office,low-contrast,saturated,tilt-30,tilt-45,defocus")
-    parser.add_argument("--pattern", default="9x6", help="inner corners, COLSxROWS")
+    parser.add_argument("--pattern", default="9x6", type=pattern, help="inner corners, COLSxROWS")
     args = parser.parse_args()
     global COLS, ROWS
-    COLS, ROWS = (int(v) for v in args.pattern.split("x"))
+    COLS, ROWS = args.pattern
     print("| case | size | anaglyph found | its median / largest error (px) | OpenCV SB found | its median / largest error (px) | seconds per capture (anaglyph / OpenCV) |")
     print("|---|---|---|---|---|---|---|")
     totals = {"anaglyph": [0, 0], "opencv": [0, 0]}

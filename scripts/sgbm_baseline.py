@@ -49,6 +49,9 @@ def main() -> None:
     parser.add_argument("--block", type=int, default=5, help="SGBM's block size (odd)")
     parser.add_argument("--mode", choices=sorted(MODES), default="hh")
     args = parser.parse_args()
+    if not (args.pairs / "index.tsv").is_file():
+        raise SystemExit(f"{args.pairs}: no index.tsv (write the pairs with "
+                         "ANAGLYPH_WRITE_PAIRS=DIR and the stereo_quality example)")
     with open(args.pairs / "index.tsv", newline="") as f:
         rows = list(csv.DictReader(f, delimiter="\t"))
     if not rows:

@@ -535,21 +535,12 @@ fn cost_at(
     let (w, h, c, y) = (fr.width, fr.height, fr.channels, job.y);
     let a = &fr.data[(y * w + x) * c..][..c];
     let (mut sums, mut counts) = ([0f32; HALVES], [0u16; HALVES]);
-    for &(v, (sx, sy), halves) in job.others {
-        let (px, py) = (x as f64 + sx * d, y as f64 + sy * d);
-        if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+    for &(v, shift, halves) in job.others {
+        let Some((x0, y0, k)) = bilinear_cell((w, h), (x, y), shift, d) else {
             continue;
-        }
-        let (x0, y0) = ((px as usize).min(w - 2), (py as usize).min(h - 2));
-        let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+        };
         let fv = &job.features[v].data;
         let feature = |xx: usize, yy: usize| &fv[(yy * w + xx) * c..][..c];
-        let k = [
-            (1.0 - fx) * (1.0 - fy),
-            fx * (1.0 - fy),
-            (1.0 - fx) * fy,
-            fx * fy,
-        ];
         let taps = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
         // The cosine with the interpolated feature: a·Σkᵢfᵢ / |Σkᵢfᵢ|. Without the norm,
         // interpolating similarities between two pixels lowers them off the grid and
@@ -561,19 +552,64 @@ fn cost_at(
             }
         }
         let norm2 = neighbours[v].interpolated_norm2(x0, y0, k);
-        let similarity = if norm2 > 0.0 {
-            numerator / norm2.sqrt()
-        } else {
-            0.0
-        };
-        let cost = (0.5 - 0.5 * similarity).clamp(0.0, 1.0);
-        for k in 0..HALVES {
-            if halves[k] {
-                sums[k] += cost;
-                counts[k] += 1;
-            }
+        add_interpolated_cost(numerator, norm2, halves, &mut sums, &mut counts);
+    }
+    least_half_mean(&sums, &counts)
+}
+
+/// The bilinear cell of reference pixel (x, y) seen at disparity `d` by a view shifted
+/// by `(sx, sy)` per unit disparity in views of `(w, h)`: its top-left pixel and the
+/// weights of its four taps (top-left, top-right, bottom-left, bottom-right); None
+/// outside the view.
+#[inline(always)]
+fn bilinear_cell(
+    (w, h): (usize, usize),
+    (x, y): (usize, usize),
+    (sx, sy): (f64, f64),
+    d: f64,
+) -> Option<(usize, usize, [f32; 4])> {
+    let (px, py) = (x as f64 + sx * d, y as f64 + sy * d);
+    if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+        return None;
+    }
+    let (x0, y0) = ((px as usize).min(w - 2), (py as usize).min(h - 2));
+    let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+    let k = [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ];
+    Some((x0, y0, k))
+}
+
+/// Adds one view's cost, the cosine `numerator / √norm2` with its interpolated feature
+/// (0 where the feature is zero), to the sums and counts of the half-arrays it is in.
+#[inline(always)]
+fn add_interpolated_cost(
+    numerator: f32,
+    norm2: f32,
+    halves: [bool; HALVES],
+    sums: &mut [f32; HALVES],
+    counts: &mut [u16; HALVES],
+) {
+    let similarity = if norm2 > 0.0 {
+        numerator / norm2.sqrt()
+    } else {
+        0.0
+    };
+    let cost = (0.5 - 0.5 * similarity).clamp(0.0, 1.0);
+    for k in 0..HALVES {
+        if halves[k] {
+            sums[k] += cost;
+            counts[k] += 1;
         }
     }
+}
+
+/// The least mean cost over the half-arrays that saw the point (NaN if none did).
+#[inline(always)]
+fn least_half_mean(sums: &[f32; HALVES], counts: &[u16; HALVES]) -> f32 {
     (0..HALVES)
         .filter(|&k| counts[k] > 0)
         .map(|k| sums[k] / counts[k] as f32)
@@ -779,18 +815,7 @@ fn half_step_row_avx512_bf16(
         for (&(step, other, x0, y0, k), numerator) in taps.iter().zip(numerators) {
             let (v, _, halves) = job.others[other];
             let norm2 = neighbours[v].interpolated_norm2(x0, y0, k);
-            let similarity = if norm2 > 0.0 {
-                numerator / norm2.sqrt()
-            } else {
-                0.0
-            };
-            let cost = (0.5 - 0.5 * similarity).clamp(0.0, 1.0);
-            for j in 0..HALVES {
-                if halves[j] {
-                    sums[step][j] += cost;
-                    counts[step][j] += 1;
-                }
-            }
+            add_interpolated_cost(numerator, norm2, halves, &mut sums[step], &mut counts[step]);
         }
         weighted.fill(_mm512_setzero_ps());
     };
@@ -820,19 +845,10 @@ fn half_step_row_avx512_bf16(
                 continue;
             }
             let dd = d as f64 + offset;
-            for (other, &(v, (sx, sy), _)) in job.others.iter().enumerate() {
-                let (px, py) = (x as f64 + sx * dd, y as f64 + sy * dd);
-                if px < 0.0 || py < 0.0 || px > (w - 1) as f64 || py > (h - 1) as f64 {
+            for (other, &(v, shift, _)) in job.others.iter().enumerate() {
+                let Some((x0, y0, k)) = bilinear_cell((w, h), (x, y), shift, dd) else {
                     continue;
-                }
-                let (x0, y0) = ((px as usize).min(w - 2), (py as usize).min(h - 2));
-                let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
-                let k = [
-                    (1.0 - fx) * (1.0 - fy),
-                    fx * (1.0 - fy),
-                    (1.0 - fx) * fy,
-                    fx * fy,
-                ];
+                };
                 let fv = &job.features[v].data;
                 let sum = &mut weighted[waiting];
                 if c == 16 {
@@ -876,10 +892,7 @@ fn half_step_row_avx512_bf16(
         }
         for (step, (slot, &need)) in costs.iter_mut().zip(needs).enumerate() {
             if need {
-                *slot = (0..HALVES)
-                    .filter(|&j| counts[step][j] > 0)
-                    .map(|j| sums[step][j] / counts[step][j] as f32)
-                    .fold(f32::NAN, f32::min);
+                *slot = least_half_mean(&sums[step], &counts[step]);
             }
         }
     }
